@@ -1,0 +1,241 @@
+"""The ``slot`` command line: parse, check, dispatch. No physics here.
+
+``slot run`` hands its arguments to Hydra unchanged (overrides, ``-m`` multirun,
+``--cfg job``, ``hydra.run.dir=...``). Before Hydra starts, every override (and
+every value of a sweep) is composed and checked against the typed schema, so a
+bad value stops the run with one line and exit status 2 instead of a traceback
+from inside a job.
+"""
+
+from __future__ import annotations
+
+import itertools
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from .config import ConfigError, validate
+
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+GROUPS = ("robot", "gait", "solver", "plant", "experiment", "scenario")
+HYDRA_INFO_FLAGS = {"--cfg", "-c", "--info", "-i", "--hydra-help", "--help", "-h", "--shell-completion", "-sc",
+                    "--resolve", "--package", "-p"}
+VALUE_FLAGS = {"--cfg", "-c", "--package", "-p", "--config-path", "-cp", "--config-name", "-cn",
+               "--config-dir", "-cd", "--experimental-rerun"}
+MAX_PRECHECK = 256
+EXIT_USER_ERROR = 2
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help=(
+    "slotexp: reproduce and extend the SLOT soft-quadruped convex-MPC paper.\n\n"
+    "  slot run experiment=perturb            Table I, Figs. 7-8\n\n"
+    "  slot run experiment=simulate gait=omni60\n\n"
+    "  slot run -m experiment=perturb solver=scs,osqp,clarabel\n\n"
+    "  slot figures experiments/perturb/<timestamp>"))
+
+
+def fail(message: str) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise SystemExit(EXIT_USER_ERROR)
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from .compare import TrajectoryError
+    from .errors import UserError
+    from .record import LogReadError
+
+    return ConfigError, UserError, TrajectoryError, LogReadError
+
+
+def group_options(group: str) -> list[str]:
+    return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
+
+
+def load_config(cfg) -> "SlotConfig":  # noqa: F821 - forward ref to avoid importing at CLI start
+    """DictConfig -> checked dataclasses."""
+    from omegaconf import OmegaConf
+
+    return validate(OmegaConf.to_object(cfg))
+
+
+def _split(args: list[str]) -> tuple[list[str], bool, bool]:
+    """(overrides, multirun, hydra_info_request)."""
+    overrides, multirun, info = [], False, False
+    skip = False
+    for a in args:
+        if skip:
+            skip = False
+            continue
+        if a in ("-m", "--multirun"):
+            multirun = True
+        elif a.split("=")[0] in HYDRA_INFO_FLAGS:
+            info = True
+            skip = a in VALUE_FLAGS
+        elif a in VALUE_FLAGS:
+            skip = True
+        elif a.startswith("-"):
+            continue
+        else:
+            overrides.append(a)
+    return overrides, multirun, info
+
+
+def _override_text(o, value: str) -> str:
+    key = o.key_or_group + (f"@{o.package}" if o.package else "")
+    prefix = {"ADD": "+", "FORCE_ADD": "++", "DEL": "~"}.get(o.type.name, "")
+    return f"{prefix}{key}={value}"
+
+
+def precheck(overrides: list[str], multirun: bool) -> None:
+    """Compose and validate every combination the run would launch; fail with one line."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    user = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
+    try:
+        parsed = OverridesParser.create().parse_overrides(user)
+    except HydraException as exc:
+        fail(f"cannot parse override: {str(exc).splitlines()[0]}")
+    choices: list[list[str]] = []
+    for o in parsed:
+        if o.is_sweep_override():
+            if not multirun:
+                fail(f"{o.input_line} is a sweep: add -m (multirun) to run every value")
+            values = list(o.sweep_string_iterator())
+        else:
+            values = [o.get_value_element_as_str()] if not o.is_delete() or o.value() is not None else [""]
+        group = o.key_or_group.split("@")[0]
+        if group in GROUPS:
+            options = group_options(group)
+            for v in values:
+                if v not in options:
+                    fail(f"unknown {group} {v!r}: choose one of {', '.join(options)} (files in conf/{group}/)")
+        choices.append([_override_text(o, v) if not o.is_delete() else o.input_line for v in values])
+    from .config import register_schemas
+
+    register_schemas()
+    combos = itertools.islice(itertools.product(*choices), MAX_PRECHECK)
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        for combo in combos:
+            try:
+                cfg = compose("config", overrides=list(combo))
+            except (HydraException, OmegaConfBaseException) as exc:
+                fail(_compose_message(exc))
+            try:
+                load_config(cfg)
+            except ConfigError as exc:
+                fail(str(exc))
+            except (OmegaConfBaseException, ValueError, TypeError) as exc:
+                fail(_compose_message(exc))
+
+
+def _compose_message(exc: BaseException) -> str:
+    """Hydra/OmegaConf errors are multi-line; keep the informative part on one line."""
+    parts = [str(exc)]
+    if exc.__cause__ is not None:
+        parts.append(str(exc.__cause__))
+    lines = [ln.strip() for p in parts for ln in p.splitlines() if ln.strip()]
+    keep = [ln for ln in lines if not ln.startswith(("object_type", "full_key", "Set the environment"))]
+    text = "; ".join(dict.fromkeys(keep))
+    return text.replace("Error merging override ", "bad override ")
+
+
+def _hydra_task(cfg) -> None:
+    """What Hydra runs for each job: check, run the experiment, print the output dir last."""
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+
+    from .jobs import run_experiment
+
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    try:
+        run_experiment(load_config(cfg), out_dir, OmegaConf.to_yaml(cfg))
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+    except KeyboardInterrupt:
+        typer.echo(f"interrupted: the logs written so far are valid and readable in {out_dir}", err=True)
+        typer.echo(str(out_dir))
+        raise SystemExit(130)
+    typer.echo(str(out_dir))
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True,
+                               "help_option_names": ["--help"]})
+def run(ctx: typer.Context) -> None:
+    """Run an experiment. Arguments are Hydra overrides, e.g. experiment=perturb gait=walk solver=scs.
+
+    Groups: experiment (perturb, simulate, validate), gait (walk, crawl, omni60),
+    solver (clarabel, osqp, scs), plant (ideal), robot (slot), and the scenarios
+    under scenarios.<name> (baseline, roll, pitch, height, velocity, combined, noise).
+    Use -m for a multirun sweep (a,b,c values), --cfg job to print the composed
+    config, hydra.run.dir=DIR to choose the output directory.
+    """
+    import hydra
+
+    from .config import register_schemas
+
+    args = list(ctx.args)
+    overrides, multirun, info = _split(args)
+    if not info:
+        precheck(overrides, multirun)
+    register_schemas()
+    sys.argv = ["slot", *args]
+    main_fn = hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")(_hydra_task)
+    main_fn()
+
+
+@app.command()
+def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (holding logs/*.mcap).")) -> None:
+    """Rebuild a run's tables and figures from its MCAP logs alone."""
+    from omegaconf import OmegaConf
+
+    from .record import read_log
+    from .runlog import find_logs
+
+    if not run_dir.is_dir():
+        fail(f"{run_dir}: not a directory: give a run's output directory")
+    logs = find_logs(run_dir)
+    if not logs:
+        fail(f"{run_dir}: no logs/*.mcap found: is this a run's output directory?")
+    try:
+        meta = read_log(logs[0]).metadata
+        experiment = meta.get("run", {}).get("experiment")
+        conf = OmegaConf.create(meta.get("config", {}).get("yaml", "{}"))
+        if experiment == "perturb":
+            from .jobs import perturb
+
+            perturb.report(run_dir, float(conf.experiment.settle_fraction), {n: i for i, n in enumerate(
+                conf.experiment.scenarios)})
+        elif experiment == "simulate":
+            from .jobs import simulate
+
+            simulate.report(run_dir, list(conf.gait.velocity), float(conf.experiment.drift_distance),
+                            list(conf.robot.leg.names))
+        elif experiment == "validate":
+            from .compare import Alignment
+            from .jobs import validate as val
+
+            exp = conf.experiment
+            candidate = str(logs[0]) if not exp.candidate else exp.candidate
+            val.report(run_dir, val.load_trajectory(exp.reference), val.load_trajectory(candidate),
+                       Alignment(exp.align, float(exp.offset_s)), exp.markers, exp.reference, candidate)
+        else:
+            fail(f"{logs[0]}: log metadata names no known experiment ({experiment!r})")
+    except _user_errors() as exc:
+        fail(str(exc))
+    typer.echo(str(run_dir))
+
+
+def main() -> None:
+    try:
+        app()
+    except KeyboardInterrupt:
+        typer.echo("interrupted", err=True)
+        raise SystemExit(130)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,400 @@
+"""Typed configuration: dataclass schemas, physical-range checks, Hydra registration.
+
+The schemas are the single source of truth for what a run may be configured with.
+Hydra merges the YAML tree in ``conf/`` onto them (so an unknown key or a value of
+the wrong type is rejected while composing), and :func:`validate` then checks every
+declared physical range so a bad value fails before any work starts, with one line
+that names the key and the allowed range.
+
+This module imports no Hydra at module level: the numerical core uses the
+dataclasses; only :func:`register_schemas` touches Hydra's ConfigStore.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+__all__ = [
+    "ConfigError",
+    "RobotConfig",
+    "TorsoConfig",
+    "LegConfig",
+    "SimConfig",
+    "GaitConfig",
+    "MpcConfig",
+    "SolverConfig",
+    "PlantConfig",
+    "StateOffset",
+    "Impulse",
+    "NoiseConfig",
+    "ScenarioConfig",
+    "PerturbExperiment",
+    "SimulateExperiment",
+    "ValidateExperiment",
+    "LogConfig",
+    "SlotConfig",
+    "validate",
+    "register_schemas",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration value the user must change; ``str()`` is one line saying what to fix."""
+
+
+def _num(default: float, *, lo: float | None = None, hi: float | None = None,
+         lo_open: bool = False, unit: str = "") -> Any:
+    """A float/int field with a declared physical range, checked by :func:`validate`."""
+    return field(default=default, metadata={"lo": lo, "hi": hi, "lo_open": lo_open, "unit": unit})
+
+
+def _vec(default: list, *, length: int | None = None, lo: float | None = None,
+         hi: float | None = None, lo_open: bool = False, unit: str = "") -> Any:
+    """A list field with a fixed length and an element-wise range."""
+    return field(default_factory=lambda: list(default),
+                 metadata={"length": length, "lo": lo, "hi": hi, "lo_open": lo_open, "unit": unit})
+
+
+def _choice(default: str, *choices: str) -> Any:
+    return field(default=default, metadata={"choices": choices})
+
+
+# --------------------------------------------------------------------------- robot
+@dataclass
+class TorsoConfig:
+    """Rigid cuboid torso (paper Sec. II: 125.5 x 85.5 x 34 mm, m_c = 2.0 kg)."""
+
+    mass: float = _num(2.0, lo=0.0, lo_open=True, unit="kg")
+    size: list[float] = _vec([0.1255, 0.0855, 0.034], length=3, lo=0.0, lo_open=True, unit="m")
+
+
+@dataclass
+class LegConfig:
+    """One TPU leg (paper Sec. III; rest shape and yaw from the authors' public code)."""
+
+    names: list[str] = field(default_factory=lambda: ["FL", "RL", "RR", "FR"])
+    yaw_deg: list[float] = _vec([45.0, 135.0, 225.0, 315.0], length=4, lo=-360.0, hi=360.0, unit="deg")
+    length: float = _num(0.19, lo=0.0, lo_open=True, unit="m")
+    n_nodes: int = _num(31, lo=3, unit="nodes")
+    mass: float = _num(0.04, lo=0.0, unit="kg")
+    width: float = _num(0.020, lo=0.0, lo_open=True, unit="m")
+    thickness_root: float = _num(0.0135, lo=0.0, lo_open=True, unit="m")
+    thickness_tip: float = _num(0.0035, lo=0.0, lo_open=True, unit="m")
+    youngs_modulus: float = _num(1.0e7, lo=0.0, lo_open=True, unit="Pa")
+    density: float = _num(1200.0, lo=0.0, lo_open=True, unit="kg/m^3")
+    # Rest shape z(x) = c3 x^3 + c2 x^2 + c1 x + c0 in the leg plane (root at x = 0).
+    rest_shape_coeffs: list[float] = _vec([6.356, -1.810, 0.0, 0.02175], length=4, unit="m")
+    pulley_radius: float = _num(0.01, lo=0.0, lo_open=True, unit="m")
+    tendon_max_deg: float = _num(116.28, lo=0.0, lo_open=True, hi=360.0, unit="deg")
+
+
+@dataclass
+class ContactConfig:
+    """Penalty ground contact (paper eq. 5) and Coulomb friction."""
+
+    stiffness: float = _num(1.0e5, lo=0.0, lo_open=True, unit="N/m")
+    damping: float = _num(10.0, lo=0.0, unit="N s/m")
+    friction: float = _num(0.1, lo=0.0, unit="")
+
+
+@dataclass
+class ActuationConfig:
+    """Affine force-to-tendon map theta[deg] = (f_z - offset) / slope (paper eq. 11)."""
+
+    slope_n_per_deg: float = _num(0.107, lo=0.0, lo_open=True, unit="N/deg")
+    offset_n: float = _num(-6.91, unit="N")
+
+
+@dataclass
+class RobotConfig:
+    name: str = "slot"
+    torso: TorsoConfig = field(default_factory=TorsoConfig)
+    leg: LegConfig = field(default_factory=LegConfig)
+    contact: ContactConfig = field(default_factory=ContactConfig)
+    actuation: ActuationConfig = field(default_factory=ActuationConfig)
+
+
+# --------------------------------------------------------------------------- simulation
+@dataclass
+class SimConfig:
+    gravity: float = _num(9.81, lo=0.0, hi=100.0, unit="m/s^2")
+    dt: float = _num(1.0e-3, lo=0.0, lo_open=True, hi=1.0 / 30.0, unit="s")
+    seed: int = _num(0, lo=0, unit="")
+
+
+@dataclass
+class GaitConfig:
+    """A gait: seed 001's gait matrix plus the velocity reference it is run with.
+
+    ``phases`` rows are ``[duration in MPC steps, c_FL, c_RL, c_RR, c_FR]`` with
+    ``c = 1`` for stance and ``0`` for swing. SLOT's soft feet do not lift: a
+    "swing" leg is the one whose tendon contracts; it stays on the ground but slides,
+    which the MPC sees as the low friction coefficient ``mu_swing``. With
+    ``swing_contact: false`` swing legs exert no force at all (rigid-quadruped
+    convention, seed 001).
+    """
+
+    name: str = "walk"
+    phases: list[list[int]] = field(default_factory=lambda: [[15, 1, 0, 1, 0], [15, 0, 1, 0, 1]])
+    velocity: list[float] = _vec([0.08, 0.0], length=2, lo=-1.0, hi=1.0, unit="m/s")
+    yaw_rate: float = _num(0.0, lo=-2.0, hi=2.0, unit="rad/s")
+    height: float = _num(0.04, lo=0.0, lo_open=True, hi=0.5, unit="m")
+    mu_stance: float = _num(0.6, lo=0.0, unit="")
+    mu_swing: float = _num(0.2, lo=0.0, unit="")
+    swing_contact: bool = True
+
+
+@dataclass
+class MpcConfig:
+    """Convex MPC over ground-reaction forces (paper Sec. V)."""
+
+    rate_hz: float = _num(30.0, lo=0.0, lo_open=True, hi=1000.0, unit="Hz")
+    horizon: int = _num(15, lo=1, hi=200, unit="steps")
+    # Paper: Q = diag(...)/1000, R = 1e-8 I. Order: roll pitch yaw px py pz wx wy wz vx vy vz.
+    q_diag: list[float] = _vec([0.1e-3, 0.1e-3, 0.1e-3, 0.0, 0.0, 100e-3, 0.01e-3, 0.01e-3, 0.01e-3,
+                                20e-3, 0.1e-3, 0.0], length=12, lo=0.0, unit="")
+    r_weight: float = _num(1.0e-8, lo=0.0, unit="")
+    f_max: float = _num(6.0, lo=0.0, lo_open=True, unit="N")
+    f_min_stance: float = _num(0.0, lo=0.0, unit="N")
+    # |sum f_z - m g| <= band. 0 reproduces the paper's strict equality (9).
+    force_balance_band: float = _num(2.0, lo=0.0, unit="N")
+    # The QP objective is multiplied by this before solving; it does not change the
+    # minimiser but keeps the paper's 1e-4..1e-8 weights away from solver tolerances.
+    objective_scale: float = _num(1000.0, lo=0.0, lo_open=True, unit="")
+
+
+@dataclass
+class SolverConfig:
+    """QP backend and the settings every backend accepts."""
+
+    name: str = _choice("clarabel", "scs", "osqp", "clarabel")
+    eps_abs: float = _num(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
+    eps_rel: float = _num(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
+    max_iters: int = _num(10000, lo=1, unit="")
+    warm_start: bool = True
+    time_limit_s: float = _num(0.0, lo=0.0, unit="s")  # 0 = no limit
+    verbose: bool = False
+
+
+@dataclass
+class PlantConfig:
+    name: str = _choice("ideal", "ideal")
+
+
+# --------------------------------------------------------------------------- scenarios
+@dataclass
+class StateOffset:
+    """Offsets added to the nominal initial state (SI units, angles in rad)."""
+
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    wx: float = 0.0
+    wy: float = 0.0
+    wz: float = 0.0
+    vx: float = 0.0
+    vy: float = 0.0
+    vz: float = 0.0
+
+    def as_array(self) -> list[float]:
+        return [getattr(self, f.name) for f in dataclasses.fields(self)]
+
+
+@dataclass
+class Impulse:
+    """An instantaneous push on the torso at time ``t`` (world frame, about the CoM)."""
+
+    t: float = _num(0.0, lo=0.0, unit="s")
+    linear: list[float] = _vec([0.0, 0.0, 0.0], length=3, unit="N s")
+    angular: list[float] = _vec([0.0, 0.0, 0.0], length=3, unit="N m s")
+
+
+@dataclass
+class NoiseConfig:
+    """Gaussian noise: on the state the MPC sees, and as a force on the torso."""
+
+    measurement_sigma: float = _num(0.0, lo=0.0, unit="SI per state")
+    process_force_sigma: float = _num(0.0, lo=0.0, unit="N")
+
+
+@dataclass
+class ScenarioConfig:
+    name: str = "baseline"
+    description: str = ""
+    offset: StateOffset = field(default_factory=StateOffset)
+    impulses: list[Impulse] = field(default_factory=list)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    deterministic: bool = True
+
+
+# --------------------------------------------------------------------------- experiments
+@dataclass
+class PerturbExperiment:
+    """Paper Table I: every listed scenario on the walk gait."""
+
+    name: str = "perturb"
+    duration: float = _num(25.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
+    scenarios: list[str] = field(default_factory=lambda: [
+        "baseline", "roll", "pitch", "height", "velocity", "combined", "noise"])
+    n_jobs: int = _num(0, lo=0, unit="processes")  # 0 = one per core
+    settle_fraction: float = _num(0.01, lo=0.0, lo_open=True, hi=1.0, unit="")
+
+
+@dataclass
+class SimulateExperiment:
+    """Closed-loop run of one gait (paper Figs. 4 and 6)."""
+
+    name: str = "simulate"
+    duration: float = _num(10.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
+    scenario: str = "baseline"
+    drift_distance: float = _num(0.8, lo=0.0, lo_open=True, unit="m")
+
+
+@dataclass
+class ValidateExperiment:
+    """Compare a trajectory with a reference (another run's log, or a marker CSV)."""
+
+    name: str = "validate"
+    reference: Optional[str] = None
+    candidate: Optional[str] = None  # None: simulate the current config
+    duration: float = _num(10.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
+    scenario: str = "baseline"
+    align: str = _choice("start", "start", "absolute")
+    offset_s: float = 0.0
+    markers: Optional[list[str]] = None
+
+
+@dataclass
+class LogConfig:
+    enabled: bool = True
+
+
+@dataclass
+class SlotConfig:
+    """The whole run. ``experiment`` is one of the experiment dataclasses above."""
+
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    gait: GaitConfig = field(default_factory=GaitConfig)
+    scenarios: dict[str, ScenarioConfig] = field(default_factory=dict)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    plant: PlantConfig = field(default_factory=PlantConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
+    mpc: MpcConfig = field(default_factory=MpcConfig)
+    log: LogConfig = field(default_factory=LogConfig)
+    experiment: Any = None
+
+
+# --------------------------------------------------------------------------- checks
+def _range_text(meta: dict) -> str:
+    lo, hi, unit = meta.get("lo"), meta.get("hi"), meta.get("unit") or ""
+    parts = []
+    if lo is not None:
+        parts.append(f"{'>' if meta.get('lo_open') else '>='} {lo:g}")
+    if hi is not None:
+        parts.append(f"<= {hi:g}")
+    text = " and ".join(parts)
+    return f"{text} {unit}".strip()
+
+
+def _check_scalar(path: str, value: Any, meta: dict) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return
+    lo, hi = meta.get("lo"), meta.get("hi")
+    bad = not math.isfinite(value)
+    if lo is not None:
+        bad |= value <= lo if meta.get("lo_open") else value < lo
+    if hi is not None:
+        bad |= value > hi
+    if bad:
+        raise ConfigError(f"{path} = {value!r} is out of range: must be {_range_text(meta)}")
+
+
+def _walk(obj: Any, path: str) -> None:
+    if dataclasses.is_dataclass(obj):
+        for f in dataclasses.fields(obj):
+            value = getattr(obj, f.name)
+            sub = f"{path}.{f.name}" if path else f.name
+            meta = dict(f.metadata)
+            if "choices" in meta and value not in meta["choices"]:
+                raise ConfigError(f"{sub} = {value!r} is not supported: choose one of "
+                                  f"{', '.join(meta['choices'])}")
+            if "length" in meta and isinstance(value, list):
+                if meta["length"] is not None and len(value) != meta["length"]:
+                    raise ConfigError(f"{sub} has {len(value)} entries: it needs exactly {meta['length']}")
+                for i, item in enumerate(value):
+                    _check_scalar(f"{sub}[{i}]", item, meta)
+            elif meta:
+                _check_scalar(sub, value, meta)
+            _walk(value, sub)
+    elif isinstance(obj, dict):
+        for key, value in obj.items():
+            _walk(value, f"{path}.{key}")
+    elif isinstance(obj, list):
+        for i, value in enumerate(obj):
+            if dataclasses.is_dataclass(value):
+                _walk(value, f"{path}[{i}]")
+
+
+def _check_gait(gait: GaitConfig) -> None:
+    if not gait.phases:
+        raise ConfigError("gait.phases is empty: give at least one row [steps, c_FL, c_RL, c_RR, c_FR]")
+    for i, row in enumerate(gait.phases):
+        if len(row) != 5:
+            raise ConfigError(f"gait.phases[{i}] has {len(row)} entries: it needs [steps, c_FL, c_RL, c_RR, c_FR]")
+        if int(row[0]) < 1:
+            raise ConfigError(f"gait.phases[{i}][0] = {row[0]} is out of range: a phase lasts >= 1 MPC step")
+        if any(c not in (0, 1) for c in row[1:]):
+            raise ConfigError(f"gait.phases[{i}] contact flags must be 0 (swing) or 1 (stance), got {row[1:]}")
+
+
+def validate(cfg: SlotConfig) -> SlotConfig:
+    """Check every declared range and the cross-field rules; raise :class:`ConfigError`."""
+    _walk(cfg, "")
+    leg = cfg.robot.leg
+    if len(leg.names) != 4:
+        raise ConfigError(f"robot.leg.names has {len(leg.names)} entries: SLOT has exactly 4 legs")
+    _check_gait(cfg.gait)
+    if cfg.mpc.f_min_stance > cfg.mpc.f_max:
+        raise ConfigError(f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = "
+                          f"{cfg.mpc.f_max:g} N: lower it")
+    exp = cfg.experiment
+    if isinstance(exp, PerturbExperiment):
+        for name in exp.scenarios:
+            if name not in cfg.scenarios:
+                raise ConfigError(f"experiment.scenarios names unknown scenario {name!r}: choose from "
+                                  f"{', '.join(sorted(cfg.scenarios))}")
+        if not exp.scenarios:
+            raise ConfigError("experiment.scenarios is empty: list at least one scenario")
+    elif isinstance(exp, (SimulateExperiment, ValidateExperiment)):
+        if exp.scenario not in cfg.scenarios:
+            raise ConfigError(f"experiment.scenario = {exp.scenario!r} is unknown: choose from "
+                              f"{', '.join(sorted(cfg.scenarios))}")
+        if isinstance(exp, ValidateExperiment) and not exp.reference:
+            raise ConfigError("experiment.reference is not set: pass experiment.reference=<run dir, .mcap "
+                              "log or marker .csv>")
+    elif exp is None:
+        raise ConfigError("no experiment selected: pass experiment=perturb, simulate or validate")
+    return cfg
+
+
+EXPERIMENT_SCHEMAS = {
+    "perturb": PerturbExperiment,
+    "simulate": SimulateExperiment,
+    "validate": ValidateExperiment,
+}
+
+
+def register_schemas() -> None:
+    """Register the schemas with Hydra's ConfigStore (called by the CLI only)."""
+    from hydra.core.config_store import ConfigStore
+
+    cs = ConfigStore.instance()
+    cs.store(name="slot_schema", node=SlotConfig)
+    for name, schema in EXPERIMENT_SCHEMAS.items():
+        cs.store(group="experiment", name=f"{name}_schema", node=schema)

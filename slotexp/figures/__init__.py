@@ -1,0 +1,1 @@
+"""Figures for the experiments (matplotlib, Agg canvas, no pyplot state)."""

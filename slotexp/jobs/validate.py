@@ -1,0 +1,69 @@
+"""Experiment ``validate``: a trajectory against a reference (a run's log or a marker CSV).
+
+Reference and candidate are each a run directory (its first ``logs/*.mcap``), an
+``.mcap`` log, or (reference only) a marker-track CSV; with no candidate given,
+the current config is simulated and becomes the candidate. Time alignment and
+resampling are those of :mod:`slotexp.compare`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..compare import Alignment, Trajectory, align, compare, load_marker_csv, trajectory_from_frame
+from ..config import SlotConfig
+from ..errors import UserError
+from ..figures.validate import plot_overlay
+from ..record import read_log
+from ..runlog import find_logs
+from ..tables import to_markdown
+from .logged import git_commit, run_logged
+
+
+def load_trajectory(spec: str) -> Trajectory:
+    path = Path(spec).expanduser()
+    if not path.exists():
+        raise UserError(f"{spec}: no such file or directory (give a run dir, an .mcap log or a marker .csv)")
+    if path.is_dir():
+        logs = find_logs(path)
+        if not logs:
+            raise UserError(f"{spec}: no logs/*.mcap in this directory: is it a run's output directory?")
+        path = logs[0]
+    if path.suffix.lower() == ".csv":
+        return load_marker_csv(path)
+    log = read_log(path)
+    if "/markers" not in log:
+        raise UserError(f"{path}: the log has no /markers topic to compare")
+    return trajectory_from_frame(log["/markers"])
+
+
+def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
+    exp = cfg.experiment
+    reference = load_trajectory(exp.reference)
+    if exp.candidate:
+        candidate_spec = exp.candidate
+    else:
+        log = out_dir / "logs" / f"{cfg.gait.name}.mcap"
+        run_logged(cfg, cfg.scenarios[exp.scenario], exp.duration, log, resolved_yaml, git_commit())
+        candidate_spec = str(log)
+    report(out_dir, reference, load_trajectory(candidate_spec), Alignment(exp.align, exp.offset_s), exp.markers,
+           exp.reference, candidate_spec)
+
+
+def report(out_dir: Path, reference: Trajectory, candidate: Trajectory, alignment: Alignment,
+           markers: list[str] | None, reference_name: str, candidate_name: str) -> None:
+    table = compare(reference, candidate, alignment, markers)
+    table.to_csv(out_dir / "validate.csv", index=False, float_format="%.6g")
+    header = (f"Reference: `{reference_name}`  \nCandidate: `{candidate_name}`  \n"
+              f"Alignment: {alignment.mode}, offset {alignment.offset_s:g} s\n\n")
+    (out_dir / "validate.md").write_text(header + to_markdown(table))
+    times, ref, cand = align(reference, candidate, alignment)
+    if markers:
+        ref = {m: ref[m] for m in markers}
+        cand = {m: cand[m] for m in markers}
+    plot_overlay(times, ref, cand, out_dir / "fig_validate.png", title="candidate vs reference")
+    (out_dir / "metrics.json").write_text(json.dumps({
+        "reference": reference_name, "candidate": candidate_name,
+        "alignment": {"mode": alignment.mode, "offset_s": alignment.offset_s},
+        "rows": table.to_dict(orient="records")}, indent=2, default=float))

@@ -1,0 +1,50 @@
+"""Metric definitions shared by every experiment (see results/README.md).
+
+stage cost  J(t) = 1000 * e^T Q e, e = x(t) - x_ref(t), Q the MPC's Q (so the
+            factor 1000 undoes the paper's 1/1000 and J uses the paper's listed
+            weights); angle errors are wrapped to [-pi, pi).
+settle time the earliest t_s with J(t) <= fraction * max J for every t >= t_s;
+            NaN if the final cost is above that threshold (never settled).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+COST_SCALE = 1000.0
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def state_error(x: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
+    e = np.asarray(x, dtype=float) - np.asarray(x_ref, dtype=float)
+    e[..., 0:3] = wrap_angle(e[..., 0:3])
+    return e
+
+
+def stage_cost(x: np.ndarray, x_ref: np.ndarray, q_diag: np.ndarray) -> np.ndarray:
+    """J = 1000 e^T Q e for one state (12,) or a trajectory (n, 12)."""
+    e = state_error(x, x_ref)
+    return COST_SCALE * np.sum(np.asarray(q_diag) * e**2, axis=-1)
+
+
+def settle_time(t: np.ndarray, cost: np.ndarray, fraction: float) -> float:
+    """First time after which the cost stays at or below ``fraction`` of its maximum."""
+    t = np.asarray(t, dtype=float)
+    cost = np.asarray(cost, dtype=float)
+    if cost.size == 0:
+        return float("nan")
+    threshold = fraction * np.nanmax(cost)
+    above = np.flatnonzero(cost > threshold)
+    if above.size == 0:
+        return float(t[0])
+    if above[-1] == cost.size - 1:
+        return float("nan")
+    return float(t[above[-1] + 1])
+
+
+def rmse(a: np.ndarray, b: np.ndarray) -> float:
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    return float(np.sqrt(np.nanmean(d**2)))
