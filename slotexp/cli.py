@@ -207,8 +207,9 @@ def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (
         if experiment == "perturb":
             from .jobs import perturb
 
-            perturb.report(run_dir, float(conf.experiment.settle_fraction), {n: i for i, n in enumerate(
-                conf.experiment.scenarios)})
+            exp = conf.experiment
+            perturb.report(run_dir, float(exp.settle_fraction), float(exp.get("settle_hold_s", 1.0)),
+                           {n: i for i, n in enumerate(exp.scenarios)})
         elif experiment == "simulate":
             from .jobs import simulate
 

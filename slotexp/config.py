@@ -244,6 +244,7 @@ class PerturbExperiment:
         "baseline", "roll", "pitch", "height", "velocity", "combined", "noise"])
     n_jobs: int = _num(0, lo=0, unit="processes")  # 0 = one per core
     settle_fraction: float = _num(0.01, lo=0.0, lo_open=True, hi=1.0, unit="")
+    settle_hold_s: float = _num(1.0, lo=0.0, unit="s")
 
 
 @dataclass

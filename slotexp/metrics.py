@@ -3,8 +3,9 @@
 stage cost  J(t) = 1000 * e^T Q e, e = x(t) - x_ref(t), Q the MPC's Q (so the
             factor 1000 undoes the paper's 1/1000 and J uses the paper's listed
             weights); angle errors are wrapped to [-pi, pi).
-settle time the earliest t_s with J(t) <= fraction * max J for every t >= t_s;
-            NaN if the final cost is above that threshold (never settled).
+settle time the earliest t_s with J(t) <= fraction * max J for every t >= t_s,
+            provided the run stays settled for at least ``hold`` seconds after t_s;
+            NaN otherwise (never settled, or only dipped in at the very end).
 """
 
 from __future__ import annotations
@@ -30,8 +31,12 @@ def stage_cost(x: np.ndarray, x_ref: np.ndarray, q_diag: np.ndarray) -> np.ndarr
     return COST_SCALE * np.sum(np.asarray(q_diag) * e**2, axis=-1)
 
 
-def settle_time(t: np.ndarray, cost: np.ndarray, fraction: float) -> float:
-    """First time after which the cost stays at or below ``fraction`` of its maximum."""
+def settle_time(t: np.ndarray, cost: np.ndarray, fraction: float, hold: float = 1.0) -> float:
+    """First time after which the cost stays at or below ``fraction`` of its maximum.
+
+    A run that only enters the band less than ``hold`` seconds before its end has
+    not been shown to settle, so it gets NaN too.
+    """
     t = np.asarray(t, dtype=float)
     cost = np.asarray(cost, dtype=float)
     if cost.size == 0:
@@ -42,7 +47,8 @@ def settle_time(t: np.ndarray, cost: np.ndarray, fraction: float) -> float:
         return float(t[0])
     if above[-1] == cost.size - 1:
         return float("nan")
-    return float(t[above[-1] + 1])
+    settled = float(t[above[-1] + 1])
+    return settled if t[-1] - settled >= hold else float("nan")
 
 
 def rmse(a: np.ndarray, b: np.ndarray) -> float:

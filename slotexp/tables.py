@@ -13,7 +13,7 @@ from .runlog import RunData
 TABLE1_COLUMNS = ["scenario", "max_cost", "mean_cost", "final_cost", "settle_s", "infeasible_steps"]
 
 
-def table1(runs: Sequence[RunData], settle_fraction: float) -> pd.DataFrame:
+def table1(runs: Sequence[RunData], settle_fraction: float, settle_hold_s: float) -> pd.DataFrame:
     """Paper Table I: cost statistics, settle time and infeasible (fallback) steps per scenario."""
     rows = []
     for run in runs:
@@ -22,7 +22,7 @@ def table1(runs: Sequence[RunData], settle_fraction: float) -> pd.DataFrame:
             "max_cost": float(run.cost.max()),
             "mean_cost": float(run.cost.mean()),
             "final_cost": float(run.cost[-1]),
-            "settle_s": settle_time(run.t, run.cost, settle_fraction),
+            "settle_s": settle_time(run.t, run.cost, settle_fraction, settle_hold_s),
             "infeasible_steps": run.infeasible_steps,
         })
     return pd.DataFrame(rows, columns=TABLE1_COLUMNS)

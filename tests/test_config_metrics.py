@@ -50,3 +50,6 @@ def test_settle_time_definition():
     assert settle_time(t, cost, 0.01) == 5.0     # last sample above 0.1 is t = 4
     assert settle_time(t, cost, 0.05) == 2.0     # above 0.5 last at t = 1
     assert np.isnan(settle_time(t, np.r_[cost, 1.0], 0.01))  # ends above threshold: never settled
+    # entering the band only 2 s before the end is not settling when 3 s of hold are asked for
+    assert settle_time(t, cost, 0.01, hold=4.0) == 5.0
+    assert np.isnan(settle_time(t, cost, 0.01, hold=4.5))

@@ -56,6 +56,6 @@ def plot_dcm(runs: Sequence[RunData], path: str | Path, title: str = "Dynamic Co
         ax.text(1.005, 0.5, f"{n_bad} bad", transform=ax.transAxes, fontsize=7, va="center")
     axes[-1].set_xlabel("time [s]")
     handles = [Patch(color=c, label=l) for c, l in zip(DCM_COLOURS, ["feasible", "violated", "fallback"])]
-    fig.legend(handles=handles, loc="outside upper right", ncol=3, fontsize=8)
+    fig.legend(handles=handles, loc="outside lower center", ncol=3, fontsize=8)
     fig.suptitle(f"{title} (cf. paper Fig. 8)", fontsize=10)
     return save(fig, path)

@@ -25,7 +25,7 @@ def plot_com(run: RunData, path: str | Path) -> Path:
     return save(fig, path)
 
 
-def plot_path(run: RunData, legs: list[str], path: str | Path, snapshot_s: float = 1.0) -> Path:
+def plot_path(run: RunData, legs: list[str], path: str | Path, snapshot_s: float = 1.5) -> Path:
     fig = new_figure(8, 7.5)
     top, bottom = fig.subplots(2, 1, height_ratios=[3, 1])
     top.plot(run.x_ref[:, 3], run.x_ref[:, 4], "k--", lw=1.2, label="desired")
@@ -46,7 +46,7 @@ def plot_path(run: RunData, legs: list[str], path: str | Path, snapshot_s: float
     top.set_ylabel("y [m]")
     top.grid(alpha=0.3)
     top.legend(fontsize=8, loc="best")
-    top.set_title("path (circles: contracting legs at 1 s snapshots)", fontsize=9)
+    top.set_title(f"path (grey: legs, circles: contracting legs; every {snapshot_s:g} s)", fontsize=9)
     dt = run.t[1] - run.t[0] if len(run.t) > 1 else 1.0
     for i, leg in enumerate(legs):
         swing = ~run.stance[:, i]

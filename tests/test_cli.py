@@ -1,0 +1,372 @@
+"""End-to-end tests of the ``slot`` command line, run as a subprocess like a user would.
+
+Every run is short (0.5-1 s of simulated time) so the whole file stays well under
+a minute and a half on a 2-core machine. Runs shared by several tests are module-scoped
+fixtures; a test that modifies a run directory works on its own copy.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from slotexp.record import read_log
+
+SLOT = Path(sys.executable).parent / "slot"
+SLOT_CMD = [str(SLOT)] if SLOT.exists() else [sys.executable, "-m", "slotexp.cli"]
+
+TABLE1_HEADER = ["scenario", "max_cost", "mean_cost", "final_cost", "settle_s", "infeasible_steps"]
+PERTURB_SCENARIOS = ["baseline", "height"]
+PERTURB_HORIZON = 12  # not the default (15): proves the logged config is the resolved one
+ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
+
+
+def slot(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([*SLOT_CMD, *map(str, args)], cwd=cwd, env=dict(os.environ), capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def last_line(text: str) -> str:
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    assert lines, "nothing on stdout"
+    return lines[-1].strip()
+
+
+def ok(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
+    assert proc.returncode == 0, f"exit {proc.returncode}\nstdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
+    assert "Traceback" not in proc.stderr, proc.stderr
+    return proc
+
+
+def assert_one_line_error(proc: subprocess.CompletedProcess, *names: str) -> str:
+    assert proc.returncode == 2, f"exit {proc.returncode}\nstdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
+    assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, f"expected exactly one line on stderr, got:\n{proc.stderr}"
+    line = lines[0]
+    assert line.startswith("error: ") and len(line) > len("error: "), line
+    for name in names:
+        assert name in line, f"{name!r} not named in: {line}"
+    return line
+
+
+def assert_png(path: Path) -> None:
+    assert path.is_file(), f"{path} missing"
+    data = path.read_bytes()
+    assert len(data) > 1000 and data[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a real PNG"
+
+
+def plain(text: str) -> str:
+    """Help text without colour codes, box drawing or line wrapping."""
+    text = ANSI.sub("", text)
+    text = re.sub(r"[\u2500-\u257f]", " ", text)
+    return " ".join(text.split())
+
+
+# --------------------------------------------------------------------------- shared runs
+
+
+@pytest.fixture(scope="module")
+def perturb_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, subprocess.CompletedProcess]:
+    """A 1 s, 2-scenario perturb run through the parallel (n_jobs=2) path."""
+    base = tmp_path_factory.mktemp("perturb")
+    run_dir = base / "run"
+    proc = slot("run", "experiment=perturb", f"experiment.scenarios=[{','.join(PERTURB_SCENARIOS)}]",
+                "experiment.duration=1.0", "experiment.n_jobs=2", f"mpc.horizon={PERTURB_HORIZON}",
+                f"hydra.run.dir={run_dir}", cwd=base)
+    return run_dir, proc
+
+
+@pytest.fixture(scope="module")
+def simulate_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 1 s walk-gait simulate run (directory A of the validate tests)."""
+    base = tmp_path_factory.mktemp("simulate")
+    run_dir = base / "A"
+    proc = ok(slot("run", "experiment=simulate", "experiment.duration=1", f"hydra.run.dir={run_dir}", cwd=base))
+    assert last_line(proc.stdout) == str(run_dir)
+    return run_dir
+
+
+# --------------------------------------------------------------------------- 1. perturb
+
+
+def test_perturb_run_writes_table_logs_and_figures(perturb_run) -> None:
+    run_dir, proc = perturb_run
+    ok(proc)
+    assert last_line(proc.stdout) == str(run_dir)
+
+    with open(run_dir / "table1.csv", newline="") as f:
+        header = f.readline().strip().split(",")
+    assert header == TABLE1_HEADER
+    table = pd.read_csv(run_dir / "table1.csv")
+    assert list(table["scenario"]) == PERTURB_SCENARIOS
+    assert (table["infeasible_steps"] == 0).all()
+    assert (table["final_cost"] <= table["max_cost"]).all()
+    assert (table["max_cost"] > 0).all()
+    assert np.isfinite(table[["max_cost", "mean_cost", "final_cost"]].to_numpy()).all()
+
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert [r["scenario"] for r in metrics["table1"]] == PERTURB_SCENARIOS
+    assert "Infeasible steps" in (run_dir / "table1.md").read_text()
+
+    logs = sorted((run_dir / "logs").glob("*.mcap"))
+    assert [p.stem for p in logs] == sorted(PERTURB_SCENARIOS)
+    steps = int(round(1.0 * 30.0))
+    for path in logs:
+        log = read_log(path)
+        assert not log.truncated, f"{path} was not closed properly"
+        assert len(log["/state"]) == steps
+        assert np.all(np.diff(log["/state"]["t"].to_numpy()) > 0)
+
+        conf = yaml.safe_load(log.metadata["config"]["yaml"])
+        assert conf["mpc"]["horizon"] == PERTURB_HORIZON
+        assert conf["experiment"]["name"] == "perturb"
+        assert conf["experiment"]["scenarios"] == PERTURB_SCENARIOS
+        assert conf["experiment"]["duration"] == 1.0
+
+        run = log.metadata["run"]
+        assert run["experiment"] == "perturb"
+        assert run["scenario"] == path.stem
+        assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?|unknown", run["git_commit"]), run["git_commit"]
+        assert log.metadata["summary"]["infeasible_steps"] == "0"
+        assert int(log.metadata["summary"]["steps"]) == steps
+
+    assert_png(run_dir / "fig7_cost.png")
+    assert_png(run_dir / "fig8_dcm.png")
+
+
+# --------------------------------------------------------------------------- 2. figures
+
+
+def test_figures_rebuilds_table_and_figures_from_logs_alone(perturb_run, tmp_path: Path) -> None:
+    run_dir, proc = perturb_run
+    ok(proc)
+    original = (run_dir / "table1.csv").read_text()
+    copy = tmp_path / "copy"
+    shutil.copytree(run_dir, copy)
+    for name in ("table1.csv", "table1.md", "fig7_cost.png", "fig8_dcm.png", "metrics.json"):
+        (copy / name).unlink()
+    shutil.rmtree(copy / ".hydra")  # nothing but logs/ is left to rebuild from
+
+    out = ok(slot("figures", copy, cwd=tmp_path, timeout=60))
+    assert last_line(out.stdout) == str(copy)
+    assert (copy / "table1.csv").read_text() == original
+    assert (copy / "table1.md").read_text() == (run_dir / "table1.md").read_text()
+    assert_png(copy / "fig7_cost.png")
+    assert_png(copy / "fig8_dcm.png")
+    assert (copy / "metrics.json").is_file()
+
+
+# --------------------------------------------------------------------------- 3. bad input
+
+GARBAGE_CSV = "this is not,a marker file\n1,2\n3,4\n"
+
+PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra launches anything
+    (["robot.torso.mass=-1"], ["robot.torso.mass"]),
+    (["mpc.horizon=0"], ["mpc.horizon"]),
+    (["robot.leg.thickness_root=0"], ["robot.leg.thickness_root"]),
+    (["experiment=nope"], ["experiment", "nope"]),
+    (["gait=nope"], ["gait", "nope"]),
+    (["mpc.horizon=abc"], ["mpc.horizon", "abc"]),
+    (["solver=nope"], ["solver", "nope"]),
+    (["nonexistent_key=1"], ["nonexistent_key"]),
+    (["solver=scs,osqp"], ["solver=scs,osqp", "-m"]),
+    (["experiment=validate"], ["experiment.reference"]),
+]
+
+
+@pytest.mark.parametrize("overrides,names", PRECHECKED, ids=[" ".join(o) for o, _ in PRECHECKED])
+def test_bad_override_is_one_line_error(tmp_path: Path, overrides: list[str], names: list[str]) -> None:
+    run_dir = tmp_path / "run"
+    proc = slot("run", *overrides, f"hydra.run.dir={run_dir}", cwd=tmp_path, timeout=60)
+    assert_one_line_error(proc, *names)
+    assert not run_dir.exists(), "a run directory was created for a rejected config"
+    assert not (tmp_path / "experiments").exists()
+
+
+def test_validate_missing_reference_path_is_one_line_error(tmp_path: Path) -> None:
+    proc = slot("run", "experiment=validate", "experiment.reference=/does/not/exist",
+                f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path, timeout=60)
+    assert_one_line_error(proc, "/does/not/exist")
+
+
+def test_validate_garbage_reference_csv_is_one_line_error(tmp_path: Path) -> None:
+    ref = tmp_path / "garbage.csv"
+    ref.write_text(GARBAGE_CSV)
+    proc = slot("run", "experiment=validate", f"experiment.reference={ref}", "experiment.duration=0.5",
+                f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path, timeout=60)
+    assert_one_line_error(proc, "garbage.csv")
+
+
+def test_figures_on_missing_dir_is_one_line_error(tmp_path: Path) -> None:
+    proc = slot("figures", "/does/not/exist", cwd=tmp_path, timeout=60)
+    assert_one_line_error(proc, "/does/not/exist")
+
+
+def test_multirun_with_one_bad_value_fails_before_launching(tmp_path: Path) -> None:
+    sweep_dir = tmp_path / "sweep"
+    proc = slot("run", "-m", "experiment=simulate", "experiment.duration=0.5", "mpc.horizon=15,0",
+                f"hydra.sweep.dir={sweep_dir}", cwd=tmp_path, timeout=60)
+    assert_one_line_error(proc, "mpc.horizon")
+    assert not sweep_dir.exists(), "the sweep launched before the bad value was rejected"
+    assert not (tmp_path / "experiments").exists()
+    assert proc.stdout.strip() == ""
+
+
+# --------------------------------------------------------------------------- 4. info and help
+
+
+def test_cfg_job_prints_composed_yaml(tmp_path: Path) -> None:
+    proc = ok(slot("run", "--cfg", "job", "experiment=simulate", "gait=crawl", cwd=tmp_path, timeout=60))
+    assert "name: crawl" in proc.stdout
+    conf = yaml.safe_load(proc.stdout)
+    assert conf["gait"]["name"] == "crawl"
+    assert conf["experiment"]["name"] == "simulate"
+    assert conf["gait"]["phases"][0] == [30, 1, 0, 1, 1]
+    assert list(tmp_path.iterdir()) == [], "printing the config must not start a run"
+
+
+def test_help(tmp_path: Path) -> None:
+    top = ok(slot("--help", cwd=tmp_path, timeout=60))
+    text = plain(top.stdout)
+    assert "run" in text and "figures" in text
+    sub = ok(slot("run", "--help", cwd=tmp_path, timeout=60))
+    text = plain(sub.stdout)
+    assert "Usage: slot run" in text
+    assert "overrides" in text and "-m" in text
+    assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- 5. Ctrl-C
+
+
+def test_ctrl_c_exits_130_and_leaves_a_closed_log(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    log_path = run_dir / "logs" / "baseline.mcap"
+    proc = subprocess.Popen(
+        [*SLOT_CMD, "run", "experiment=perturb", "experiment.scenarios=[baseline]", "experiment.duration=25",
+         "experiment.n_jobs=1", f"hydra.run.dir={run_dir}"],
+        cwd=tmp_path, env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and proc.poll() is None:
+            if log_path.exists() and log_path.stat().st_size > 100_000:
+                break
+            time.sleep(0.1)
+        assert proc.poll() is None, f"run ended before it could be interrupted:\n{proc.stderr.read()}"
+        assert log_path.exists(), "no log appeared within 60 s"
+        os.killpg(proc.pid, signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+    assert proc.returncode == 130, f"exit {proc.returncode}\nstderr:\n{stderr}"
+    assert "Traceback" not in stderr, stderr
+    assert "interrupted" in stderr
+    assert last_line(stdout) == str(run_dir)
+
+    log = read_log(log_path)
+    assert log.truncated is False, "the interrupted run's log was not closed properly"
+    t = log["/state"]["t"].to_numpy()
+    assert 0 < len(t) < 750, "the run was not actually interrupted part-way"
+    assert np.all(np.diff(t) > 0)
+    assert "config" in log.metadata and "run" in log.metadata
+    assert "summary" not in log.metadata  # only written when the run completes
+
+
+# --------------------------------------------------------------------------- 6. validate
+
+
+def _rows(run_dir: Path) -> pd.DataFrame:
+    return pd.DataFrame(json.loads((run_dir / "metrics.json").read_text())["rows"])
+
+
+def test_validate_run_against_itself_is_zero(simulate_run: Path, tmp_path: Path) -> None:
+    out_dir = tmp_path / "V"
+    proc = ok(slot("run", "experiment=validate", f"experiment.reference={simulate_run}",
+                   f"experiment.candidate={simulate_run}", f"hydra.run.dir={out_dir}", cwd=tmp_path))
+    assert last_line(proc.stdout) == str(out_dir)
+    table = pd.read_csv(out_dir / "validate.csv")
+    assert list(table.columns) == ["marker", "axis", "rmse_m", "mae_m", "nrmse", "n_samples"]
+    assert "com" in set(table["marker"])
+    assert len(table) == 3 * table["marker"].nunique()
+    assert (table["rmse_m"].abs() <= 1e-12).all()
+    assert (table["n_samples"] == 30).all()
+    rows = _rows(out_dir)
+    assert len(rows) == len(table)
+    assert (rows["rmse_m"].abs() <= 1e-12).all()
+    assert (out_dir / "validate.md").is_file()
+    assert_png(out_dir / "fig_validate.png")
+
+
+def test_validate_marker_csv_with_known_z_offset(simulate_run: Path, tmp_path: Path) -> None:
+    markers = read_log(simulate_run / "logs" / "walk.mcap")["/markers"]
+    offset = 0.005
+    ref = tmp_path / "markers.csv"
+    lines = ["# built from the simulate run's /markers, com z shifted by +5 mm", "t,com_x,com_y,com_z"]
+    for t, x, y, z in markers[["t", "com.0", "com.1", "com.2"]].itertuples(index=False):
+        lines.append(f"{t!r},{x!r},{y!r},{z + offset!r}")
+    ref.write_text("\n".join(lines) + "\n")
+
+    out_dir = tmp_path / "V"
+    proc = ok(slot("run", "experiment=validate", f"experiment.reference={ref}",
+                   f"experiment.candidate={simulate_run}", f"hydra.run.dir={out_dir}", cwd=tmp_path))
+    assert last_line(proc.stdout) == str(out_dir)
+    for table in (pd.read_csv(out_dir / "validate.csv"), _rows(out_dir)):
+        assert list(table["marker"]) == ["com"] * 3
+        by_axis = table.set_index("axis")
+        assert by_axis.loc["z", "rmse_m"] == pytest.approx(offset, rel=1e-6)
+        assert by_axis.loc["z", "mae_m"] == pytest.approx(offset, rel=1e-6)
+        assert by_axis.loc["x", "rmse_m"] <= 1e-12
+        assert by_axis.loc["y", "rmse_m"] <= 1e-12
+        assert (table["n_samples"] == len(markers)).all()
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "slot figures cannot rebuild a validate run made with experiment.candidate=: such a run writes no "
+    "logs/*.mcap, so cli.figures fails with 'no logs/*.mcap found' before reaching its validate branch "
+    "(whose exp.candidate case is therefore unreachable)"))
+def test_figures_rebuilds_validate_run_with_candidate(simulate_run: Path, tmp_path: Path) -> None:
+    out_dir = tmp_path / "V"
+    ok(slot("run", "experiment=validate", f"experiment.reference={simulate_run}",
+            f"experiment.candidate={simulate_run}", f"hydra.run.dir={out_dir}", cwd=tmp_path))
+    original = (out_dir / "validate.csv").read_text()
+    (out_dir / "validate.csv").unlink()
+    ok(slot("figures", out_dir, cwd=tmp_path, timeout=60))
+    assert (out_dir / "validate.csv").read_text() == original
+
+
+# --------------------------------------------------------------------------- 7. multirun
+
+
+def test_multirun_sweeps_solvers_with_joblib(tmp_path: Path) -> None:
+    sweep_dir = tmp_path / "sweep"
+    proc = ok(slot("run", "-m", "experiment=simulate", "experiment.duration=0.5", "solver=clarabel,scs",
+                   f"hydra.sweep.dir={sweep_dir}", cwd=tmp_path))
+    jobs = sorted(p for p in sweep_dir.iterdir() if p.is_dir())
+    assert [p.name.split("_", 1)[0] for p in jobs] == ["0", "1"]
+    printed = {ln.strip() for ln in proc.stdout.splitlines()}
+    for job, solver in zip(jobs, ["clarabel", "scs"]):
+        assert job.name.endswith(f"solver={solver}")
+        assert str(job) in printed, f"{job} not printed on stdout"
+        metrics = json.loads((job / "metrics.json").read_text())
+        assert metrics["gait"] == "walk"
+        assert metrics["infeasible_steps"] == 0
+        log = read_log(job / "logs" / "walk.mcap")
+        assert not log.truncated
+        assert log.metadata["run"]["solver"] == solver
+        assert yaml.safe_load(log.metadata["config"]["yaml"])["solver"]["name"] == solver
