@@ -12,7 +12,6 @@ from __future__ import annotations
 import itertools
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -20,10 +19,9 @@ from .config import ConfigError, validate
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 GROUPS = ("robot", "gait", "solver", "plant", "experiment", "scenario")
-HYDRA_INFO_FLAGS = {"--cfg", "-c", "--info", "-i", "--hydra-help", "--help", "-h", "--shell-completion", "-sc",
-                    "--resolve", "--package", "-p"}
+HELP_FLAGS = {"--hydra-help", "--help", "-h", "--shell-completion", "-sc"}
 VALUE_FLAGS = {"--cfg", "-c", "--package", "-p", "--config-path", "-cp", "--config-name", "-cn",
-               "--config-dir", "-cd", "--experimental-rerun"}
+               "--config-dir", "-cd", "--experimental-rerun", "--info", "-i"}
 MAX_PRECHECK = 256
 EXIT_USER_ERROR = 2
 
@@ -60,18 +58,18 @@ def load_config(cfg) -> "SlotConfig":  # noqa: F821 - forward ref to avoid impor
 
 
 def _split(args: list[str]) -> tuple[list[str], bool, bool]:
-    """(overrides, multirun, hydra_info_request)."""
+    """(overrides, multirun, help_requested)."""
     overrides, multirun, info = [], False, False
     skip = False
     for a in args:
         if skip:
             skip = False
-            continue
+            if "=" not in a:  # a flag's value (e.g. --cfg job), not an override
+                continue
         if a in ("-m", "--multirun"):
             multirun = True
-        elif a.split("=")[0] in HYDRA_INFO_FLAGS:
+        elif a.split("=")[0] in HELP_FLAGS:
             info = True
-            skip = a in VALUE_FLAGS
         elif a in VALUE_FLAGS:
             skip = True
         elif a.startswith("-"):
@@ -197,6 +195,15 @@ def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (
 
     if not run_dir.is_dir():
         fail(f"{run_dir}: not a directory: give a run's output directory")
+    from .jobs import validate as val
+
+    if (run_dir / val.INPUTS_FILE).is_file():
+        try:
+            val.rebuild(run_dir)
+        except _user_errors() as exc:
+            fail(str(exc))
+        typer.echo(str(run_dir))
+        return
     logs = find_logs(run_dir)
     if not logs:
         fail(f"{run_dir}: no logs/*.mcap found: is this a run's output directory?")
@@ -215,14 +222,6 @@ def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (
 
             simulate.report(run_dir, list(conf.gait.velocity), float(conf.experiment.drift_distance),
                             list(conf.robot.leg.names))
-        elif experiment == "validate":
-            from .compare import Alignment
-            from .jobs import validate as val
-
-            exp = conf.experiment
-            candidate = str(logs[0]) if not exp.candidate else exp.candidate
-            val.report(run_dir, val.load_trajectory(exp.reference), val.load_trajectory(candidate),
-                       Alignment(exp.align, float(exp.offset_s)), exp.markers, exp.reference, candidate)
         else:
             fail(f"{logs[0]}: log metadata names no known experiment ({experiment!r})")
     except _user_errors() as exc:

@@ -184,6 +184,8 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     (["nonexistent_key=1"], ["nonexistent_key"]),
     (["solver=scs,osqp"], ["solver=scs,osqp", "-m"]),
     (["experiment=validate"], ["experiment.reference"]),
+    (["--cfg", "job", "gait=nope"], ["gait", "nope"]),
+    (["--cfg", "job", "mpc.horizon=abc"], ["mpc.horizon", "abc"]),
 ]
 
 
@@ -336,10 +338,6 @@ def test_validate_marker_csv_with_known_z_offset(simulate_run: Path, tmp_path: P
         assert (table["n_samples"] == len(markers)).all()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "slot figures cannot rebuild a validate run made with experiment.candidate=: such a run writes no "
-    "logs/*.mcap, so cli.figures fails with 'no logs/*.mcap found' before reaching its validate branch "
-    "(whose exp.candidate case is therefore unreachable)"))
 def test_figures_rebuilds_validate_run_with_candidate(simulate_run: Path, tmp_path: Path) -> None:
     out_dir = tmp_path / "V"
     ok(slot("run", "experiment=validate", f"experiment.reference={simulate_run}",

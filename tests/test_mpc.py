@@ -30,8 +30,6 @@ def _problem(*overrides, seed=0, offset_scale=1.0):
 
 
 def _check_constraints(cfg, robot, sol, x, plan):
-    u = sol.predicted  # (H+1, 12) states
-    f = None
     mpc_forces = sol.plan_fz
     assert np.all(mpc_forces <= plan.fz_max + TOL)
     assert np.all(mpc_forces >= plan.fz_min - TOL)
@@ -40,8 +38,7 @@ def _check_constraints(cfg, robot, sol, x, plan):
     fx, fy, fz = sol.forces[:, 0], sol.forces[:, 1], sol.forces[:, 2]
     assert np.all(np.abs(fx) <= plan.mu[0] * fz + TOL)
     assert np.all(np.abs(fy) <= plan.mu[0] * fz + TOL)
-    np.testing.assert_allclose(u[0], x, atol=1e-6)
-    del f
+    np.testing.assert_allclose(sol.predicted[0], x, atol=1e-6)
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -20,6 +20,8 @@ from ..runlog import find_logs
 from ..tables import to_markdown
 from .logged import git_commit, run_logged
 
+INPUTS_FILE = "validate_inputs.json"
+
 
 def load_trajectory(spec: str) -> Trajectory:
     path = Path(spec).expanduser()
@@ -47,8 +49,19 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         log = out_dir / "logs" / f"{cfg.gait.name}.mcap"
         run_logged(cfg, cfg.scenarios[exp.scenario], exp.duration, log, resolved_yaml, git_commit())
         candidate_spec = str(log)
-    report(out_dir, reference, load_trajectory(candidate_spec), Alignment(exp.align, exp.offset_s), exp.markers,
-           exp.reference, candidate_spec)
+    inputs = {"reference": str(Path(exp.reference).expanduser().resolve()),
+              "candidate": str(Path(candidate_spec).expanduser().resolve()),
+              "align": exp.align, "offset_s": exp.offset_s, "markers": exp.markers}
+    (out_dir / INPUTS_FILE).write_text(json.dumps(inputs, indent=2))
+    rebuild(out_dir)
+
+
+def rebuild(out_dir: Path) -> None:
+    """Redo the comparison from the inputs a validate run recorded."""
+    inputs = json.loads((out_dir / INPUTS_FILE).read_text())
+    report(out_dir, load_trajectory(inputs["reference"]), load_trajectory(inputs["candidate"]),
+           Alignment(inputs["align"], float(inputs["offset_s"])), inputs["markers"], inputs["reference"],
+           inputs["candidate"])
 
 
 def report(out_dir: Path, reference: Trajectory, candidate: Trajectory, alignment: Alignment,
