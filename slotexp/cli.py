@@ -185,6 +185,59 @@ def run(ctx: typer.Context) -> None:
     main_fn()
 
 
+def compose_config(overrides: list[str]) -> "SlotConfig":  # noqa: F821
+    """The checked config for one set of overrides, outside any Hydra run (bench, tools)."""
+    from hydra import compose, initialize_config_dir
+
+    from .config import register_schemas
+
+    precheck(overrides, multirun=False)
+    register_schemas()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return load_config(compose("config", overrides=overrides))
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def bench(ctx: typer.Context,
+          out: Path = typer.Option(None, "--out", help="Output directory (default experiments/bench/<timestamp>).")
+          ) -> None:
+    """Benchmark components side by side in one process: slot bench [COMPONENT ...] [overrides].
+
+    Writes bench.csv (component,variant,median_us,p99_us,ratio_vs_baseline) and
+    bench.json, prints the table, and prints the output directory last.
+    """
+    import datetime as _dt
+    import importlib
+    import pkgutil
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from . import bench as bench_pkg
+
+    for mod in pkgutil.iter_modules(bench_pkg.__path__):
+        importlib.import_module(f"{bench_pkg.__name__}.{mod.name}")
+    args = list(ctx.args)
+    names = [a for a in args if "=" not in a] or sorted(bench_pkg.COMPONENTS)
+    overrides = [a for a in args if "=" in a]
+    unknown = [n for n in names if n not in bench_pkg.COMPONENTS]
+    if unknown:
+        fail(f"unknown bench component {unknown[0]!r}: choose from {', '.join(sorted(bench_pkg.COMPONENTS))}")
+    if not bench_pkg.COMPONENTS:
+        fail("no benchmark components are available in this version")
+    cfg = compose_config(overrides)
+    out_dir = out or Path("experiments") / "bench" / _dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    rows = []
+    for name in names:
+        rows += bench_pkg.COMPONENTS[name](cfg, out_dir)
+    bench_pkg.write(rows, out_dir)
+    table = Table(*bench_pkg.CSV_COLUMNS)
+    for r in rows:
+        table.add_row(r.component, r.variant, f"{r.median_us:.4g}", f"{r.p99_us:.4g}", f"{r.ratio_vs_baseline:.3g}")
+    Console(stderr=True).print(table)
+    typer.echo(str(out_dir.resolve()))
+
+
 @app.command()
 def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (holding logs/*.mcap).")) -> None:
     """Rebuild a run's tables and figures from its MCAP logs alone."""

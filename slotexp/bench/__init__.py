@@ -1,0 +1,54 @@
+"""Benchmarks (`slot bench`): each component measures variants side by side in one process.
+
+A component is a function ``(cfg, out_dir) -> list[BenchRow]`` registered in
+:data:`COMPONENTS` by name. ``slot bench`` runs the selected components and writes
+``bench.csv`` (columns ``component,variant,median_us,p99_us,ratio_vs_baseline``)
+plus ``bench.json`` with each row's extra fields, into its output directory.
+Speed goals are checked here and reported with numbers, never in timed tests.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from ..config import SlotConfig
+
+CSV_COLUMNS = ["component", "variant", "median_us", "p99_us", "ratio_vs_baseline"]
+
+
+@dataclass
+class BenchRow:
+    component: str
+    variant: str
+    median_us: float
+    p99_us: float
+    ratio_vs_baseline: float            # baseline time / this time (> 1 means faster than the baseline)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+Component = Callable[[SlotConfig, Path], list[BenchRow]]
+COMPONENTS: dict[str, Component] = {}
+
+
+def register(name: str) -> Callable[[Component], Component]:
+    def wrap(fn: Component) -> Component:
+        COMPONENTS[name] = fn
+        return fn
+    return wrap
+
+
+def write(rows: list[BenchRow], out_dir: Path) -> Path:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "bench.csv"
+    with path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(CSV_COLUMNS)
+        for r in rows:
+            writer.writerow([r.component, r.variant, f"{r.median_us:.4g}", f"{r.p99_us:.4g}",
+                             f"{r.ratio_vs_baseline:.4g}"])
+    (out_dir / "bench.json").write_text(json.dumps([asdict(r) for r in rows], indent=2, default=float))
+    return path
