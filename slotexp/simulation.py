@@ -15,7 +15,7 @@ from typing import Any, Callable, Mapping, Protocol
 import numpy as np
 
 from .config import ScenarioConfig, SlotConfig
-from .controller import Controller
+from .controller import Controller, ControlStep
 from .metrics import stage_cost
 from .plant import IdealPlant, Plant, nominal_state
 from .reference import reference
@@ -78,32 +78,43 @@ def run_closed_loop(cfg: SlotConfig, scenario: ScenarioConfig, duration: float, 
         x_ref_now[3:5] = p_des
         p_des = p_des + period * x_ref_now[9:11]
         if sink is not None:
-            sol = step.solution
             position, quaternion = plant.pose()
-            sink.write_pose(t, position, quaternion)
-            sink.write("/state", t, _state_msg(x_true))
-            sink.write("/state_measured", t, _state_msg(x_meas))
-            sink.write("/reference", t, _state_msg(x_ref_now))
-            sink.write("/cost", t, {"stage": float(stage_cost(x_true, x_ref_now, q_diag))})
-            sink.write("/forces", t, {"applied": step.forces, "planned": sol.forces,
-                                      "legs": names})
-            sink.write("/contact", t, {"stance": step.plan.stance[0].astype(float), "mu": step.plan.mu[0],
-                                       "fz_max": step.plan.fz_max[0]})
-            sink.write("/tendon", t, {"command_deg": step.tendon_deg})
-            sink.write("/mpc/stats", t, {
-                "status": sol.status, "success": sol.success, "fallback": step.fallback,
-                "iterations": sol.iterations, "solve_time_s": sol.solve_time_s,
-                "wall_time_s": sol.wall_time_s, "objective": sol.objective,
-                "infeasible_total": controller.infeasible_steps})
-            sink.write("/mpc/plan", t, {"fz": sol.plan_fz, "predicted_p": sol.predicted[:, 3:6]})
-            sink.write("/constraints", t, step.violations)
-            sink.write("/markers", t, plant.markers())
+            log_step(sink, t, x_true, x_meas, x_ref_now, step, controller.infeasible_steps, plant.markers(),
+                     position, quaternion, names, q_diag)
         _advance(plant, step.forces, t, period, impulses, scenario, rng)
         done = k + 1
         if progress is not None:
             progress(done, n_steps)
     return RunSummary(scenario=scenario.name, steps=done, infeasible_steps=controller.infeasible_steps,
                       sim_time_s=done * period, wall_time_s=time.perf_counter() - started)
+
+
+def log_step(sink: Sink, t: float, x_true: np.ndarray, x_meas: np.ndarray, x_ref_now: np.ndarray,
+             step: ControlStep, infeasible_total: int, markers: Mapping[str, np.ndarray], position: np.ndarray,
+             quaternion_wxyz: np.ndarray, legs: list[str], q_diag: np.ndarray) -> None:
+    """One MPC step's messages: the log schema shared by simulation and hardware runs.
+
+    ``x_true`` is the best available state (the plant's in simulation, the state
+    estimate on hardware); the cost is evaluated on it.
+    """
+    sol = step.solution
+    sink.write_pose(t, position, quaternion_wxyz)
+    sink.write("/state", t, _state_msg(x_true))
+    sink.write("/state_measured", t, _state_msg(x_meas))
+    sink.write("/reference", t, _state_msg(x_ref_now))
+    sink.write("/cost", t, {"stage": float(stage_cost(x_true, x_ref_now, q_diag))})
+    sink.write("/forces", t, {"applied": step.forces, "planned": sol.forces, "legs": legs})
+    sink.write("/contact", t, {"stance": step.plan.stance[0].astype(float), "mu": step.plan.mu[0],
+                               "fz_max": step.plan.fz_max[0]})
+    sink.write("/tendon", t, {"command_deg": step.tendon_deg})
+    sink.write("/mpc/stats", t, {
+        "status": sol.status, "success": sol.success, "fallback": step.fallback,
+        "iterations": sol.iterations, "solve_time_s": sol.solve_time_s,
+        "wall_time_s": sol.wall_time_s, "objective": sol.objective,
+        "infeasible_total": infeasible_total})
+    sink.write("/mpc/plan", t, {"fz": sol.plan_fz, "predicted_p": sol.predicted[:, 3:6]})
+    sink.write("/constraints", t, step.violations)
+    sink.write("/markers", t, dict(markers))
 
 
 def _advance(plant: Plant, forces: np.ndarray, t: float, period: float, impulses: list, scenario: ScenarioConfig,
