@@ -87,8 +87,11 @@ class LegConfig:
     density: float = _num(1200.0, lo=0.0, lo_open=True, unit="kg/m^3")
     # Rest shape z(x) = c3 x^3 + c2 x^2 + c1 x + c0 in the leg plane (root at x = 0).
     rest_shape_coeffs: list[float] = _vec([6.356, -1.810, 0.0, 0.02175], length=4, unit="m")
+    rest_shape: str = _choice("cubic", "cubic", "straight")
     pulley_radius: float = _num(0.01, lo=0.0, lo_open=True, unit="m")
     tendon_max_deg: float = _num(116.28, lo=0.0, lo_open=True, hi=360.0, unit="deg")
+    # Viscous damping of each node's (and element's) motion relative to the root, 1/s.
+    damping_per_s: float = _num(20.0, lo=0.0, unit="1/s")
 
 
 @dataclass

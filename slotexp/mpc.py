@@ -1,4 +1,4 @@
-"""Convex MPC over ground-reaction forces (paper Sec. V; seed 001's sparse QP).
+"""Convex MPC over ground-reaction forces (paper Sec. V; seed 001): the model and the common interface.
 
 Prediction model (paper eq. 7, gyroscopic term neglected), linearised about the
 current state and held over the horizon:
@@ -11,27 +11,40 @@ current state and held over the horizon:
 A has A @ A = 0, so the zero-order-hold discretisation is exact in closed form:
 A_d = I + A T, B_d = (I T + A T^2/2) B, g_d = (I T + A T^2/2) g.
 
-The QP (sparse form: states and forces are both variables) is written once with
-CVXPY Parameters in a DPP-compliant way, so each solve only updates parameter
-values and never recompiles.
+The QP (paper eq. 8-9) is the same for every backend:
+
+    min  sum_{k=1..H} (x_k - x*_k)^T Q (x_k - x*_k) + r sum_{k=0..H-1} |u_k|^2
+    s.t. x_{k+1} = A_d x_k + B_d u_k + g_d,  x_0 = measured state
+         fz_min <= f_z <= fz_max,  |f_x|, |f_y| <= mu f_z  (per leg and step)
+         |sum_i f_z - m g| <= band                           (per step)
+
+Backends (``slotexp/backends``) differ only in how they solve it: through CVXPY
+(``clarabel``, ``scs``, ``osqp``), sparse OSQP called directly (``osqp_direct``)
+or condensed onto the forces and solved by DAQP (``daqp``). :func:`make_mpc` picks
+one from :class:`~slotexp.config.SolverConfig`; each returns an :class:`MpcSolution`.
 """
 
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol
 
-import cvxpy as cp
 import numpy as np
+from numba import njit
 
-from .body import euler_rate_matrix, rot_z
+from .body import rot_z
 from .config import MpcConfig, SolverConfig
 from .gait import ContactPlan
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .backends.cvxpy_qp import CvxpyMpc
 
 N_STATE = 12
 N_INPUT = 12
 CONSTRAINT_GROUPS = ("f_max", "f_min", "friction", "balance")
+# Statuses a backend reports when its plan may be applied (CVXPY's names, shared by all backends).
+SUCCESS = frozenset({"optimal", "optimal_inaccurate"})
 
 
 def skew(r: np.ndarray) -> np.ndarray:
@@ -47,32 +60,59 @@ def rotation_from_euler(rpy: np.ndarray) -> np.ndarray:
     return rot_z(yaw) @ ry @ rx
 
 
+@njit(cache=True)
+def _model(x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray,
+           gravity: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A_c, B_c, g_c in closed form (no matrix inverses): the hot path of every backend."""
+    cr, sr = np.cos(x[0]), np.sin(x[0])
+    cp, sp = np.cos(x[1]), np.sin(x[1])
+    cy, sy = np.cos(x[2]), np.sin(x[2])
+    rot = np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                    [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                    [-sp, cp * sr, cp * cr]])
+    iw_inv = rot @ inertia_body_inv @ rot.T
+    a = np.zeros((12, 12))
+    # E^-1 of the Z-Y-X Euler-rate matrix E(pitch, yaw)
+    a[0, 6], a[0, 7] = cy / cp, sy / cp
+    a[1, 6], a[1, 7] = -sy, cy
+    a[2, 6], a[2, 7], a[2, 8] = cy * sp / cp, sy * sp / cp, 1.0
+    for i in range(3):
+        a[3 + i, 9 + i] = 1.0
+    b = np.zeros((12, 12))
+    for leg in range(4):
+        r = lever_arms[leg]
+        sk = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+        b[6:9, 3 * leg:3 * leg + 3] = iw_inv @ sk
+        for i in range(3):
+            b[9 + i, 3 * leg + i] = 1.0 / mass
+    g = np.zeros(12)
+    g[11] = -gravity
+    return a, b, g
+
+
 def continuous_model(x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body: np.ndarray,
                      gravity: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A_c, B_c, g_c of dx/dt = A_c x + B_c u + g_c, frozen at state ``x``.
 
     ``lever_arms[i]`` is foot i relative to the CoM, world frame.
     """
-    rot = rotation_from_euler(x[0:3])
-    inertia_world_inv = np.linalg.inv(rot @ inertia_body @ rot.T)
-    a = np.zeros((N_STATE, N_STATE))
-    a[0:3, 6:9] = np.linalg.inv(euler_rate_matrix(*x[0:3]))
-    a[3:6, 9:12] = np.eye(3)
-    b = np.zeros((N_STATE, N_INPUT))
-    for i in range(4):
-        b[6:9, 3 * i:3 * i + 3] = inertia_world_inv @ skew(lever_arms[i])
-        b[9:12, 3 * i:3 * i + 3] = np.eye(3) / mass
-    g = np.zeros(N_STATE)
-    g[11] = -gravity
-    return a, b, g
+    return _model(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(lever_arms, dtype=float),
+                  float(mass), np.linalg.inv(np.asarray(inertia_body, dtype=float)), float(gravity))
+
+
+@njit(cache=True)
+def _discretize(a: np.ndarray, b: np.ndarray, g: np.ndarray, period: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    eye = np.eye(a.shape[0])
+    gamma = eye * period + a * (period**2 / 2.0)
+    return eye + a * period, gamma @ b, gamma @ g
 
 
 def discretize(a: np.ndarray, b: np.ndarray, g: np.ndarray, period: float
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact zero-order hold for a nilpotent A (A @ A = 0)."""
-    eye = np.eye(a.shape[0])
-    gamma = eye * period + a * (period**2 / 2.0)
-    return eye + a * period, gamma @ b, gamma @ g
+    f64 = np.ascontiguousarray
+    return _discretize(f64(a, dtype=float), f64(b, dtype=float), f64(g, dtype=float), float(period))
 
 
 @dataclass
@@ -84,125 +124,90 @@ class MpcSolution:
     success: bool
     iterations: int
     solve_time_s: float       # solver-reported time
-    wall_time_s: float        # parameter update + solve, as the loop sees it
+    wall_time_s: float        # build-or-update + solve, as the loop sees it
     objective: float          # unscaled objective (paper eq. 8, summed over k = 1..H)
+    inputs: np.ndarray | None = None  # (H, 12) the whole planned input sequence (None if the solve failed)
 
 
-SUCCESS = {cp.OPTIMAL, cp.OPTIMAL_INACCURATE}
-
-
-def _solver_options(solver: SolverConfig) -> tuple[str, dict]:
-    limit = solver.time_limit_s if solver.time_limit_s > 0 else None
-    if solver.name == "osqp":
-        opts = dict(eps_abs=solver.eps_abs, eps_rel=solver.eps_rel, max_iter=solver.max_iters, polish=True)
-        if limit:
-            opts["time_limit"] = limit
-        return cp.OSQP, opts
-    if solver.name == "scs":
-        opts = dict(eps_abs=solver.eps_abs, eps_rel=solver.eps_rel, max_iters=solver.max_iters)
-        if limit:
-            opts["time_limit_secs"] = limit
-        return cp.SCS, opts
-    if solver.name == "clarabel":
-        opts = dict(tol_gap_abs=solver.eps_abs, tol_gap_rel=solver.eps_rel, tol_feas=solver.eps_abs,
-                    max_iter=solver.max_iters)
-        if limit:
-            opts["time_limit"] = limit
-        return cp.CLARABEL, opts
-    raise ValueError(f"unknown solver {solver.name!r}")
-
-
-class ConvexMpc:
-    """The paper's QP, built once; :meth:`solve` only sets parameter values."""
-
-    def __init__(self, cfg: MpcConfig, solver: SolverConfig, mass: float, inertia_body: np.ndarray,
-                 gravity: float) -> None:
-        self.cfg = cfg
-        self.solver_cfg = solver
-        self.mass = mass
-        self.inertia_body = inertia_body
-        self.gravity = gravity
-        self.period = 1.0 / cfg.rate_hz
-        self.q = np.asarray(cfg.q_diag, dtype=float)
-        h = cfg.horizon
-        self._solver, self._options = _solver_options(solver)
-
-        self.x0 = cp.Parameter(N_STATE, name="x0")
-        self.x_ref = cp.Parameter((N_STATE, h), name="x_ref")
-        self.a = cp.Parameter((N_STATE, N_STATE), name="A")
-        self.b = [cp.Parameter((N_STATE, N_INPUT), name=f"B{k}") for k in range(h)]
-        self.g = cp.Parameter(N_STATE, name="g")
-        self.mu = cp.Parameter((4, h), nonneg=True, name="mu")
-        self.fz_min = cp.Parameter((4, h), nonneg=True, name="fz_min")
-        self.fz_max = cp.Parameter((4, h), nonneg=True, name="fz_max")
-        self.x = cp.Variable((N_STATE, h + 1), name="x")
-        self.u = cp.Variable((N_INPUT, h), name="u")
-
-        fx, fy, fz = self.u[0::3, :], self.u[1::3, :], self.u[2::3, :]
-        weight = mass * gravity
-        constraints = [self.x[:, 0] == self.x0]
-        constraints += [self.x[:, k + 1] == self.a @ self.x[:, k] + self.b[k] @ self.u[:, k] + self.g
-                        for k in range(h)]
-        constraints += [
-            fz <= self.fz_max,
-            fz >= self.fz_min,
-            fx <= cp.multiply(self.mu, fz), -fx <= cp.multiply(self.mu, fz),
-            fy <= cp.multiply(self.mu, fz), -fy <= cp.multiply(self.mu, fz),
-            cp.sum(fz, axis=0) <= weight + cfg.force_balance_band,
-            cp.sum(fz, axis=0) >= weight - cfg.force_balance_band,
-        ]
-        sqrt_q = np.sqrt(self.q)[:, None]
-        tracking = cp.sum_squares(cp.multiply(sqrt_q, self.x[:, 1:] - self.x_ref))
-        effort = cfg.r_weight * cp.sum_squares(self.u)
-        self.problem = cp.Problem(cp.Minimize(cfg.objective_scale * (tracking + effort)), constraints)
-        if not self.problem.is_dpp():  # pragma: no cover - guards future edits
-            raise RuntimeError("MPC problem is not DPP-compliant; it would recompile every step")
-
-    def set_model(self, x: np.ndarray, lever_arms: np.ndarray) -> None:
-        a_c, b_c, g_c = continuous_model(x, lever_arms, self.mass, self.inertia_body, self.gravity)
-        a_d, b_d, g_d = discretize(a_c, b_c, g_c, self.period)
-        self.a.value = a_d
-        self.g.value = g_d
-        for b in self.b:
-            b.value = b_d
+class Mpc(Protocol):
+    """What the controller needs from a backend: one solve per MPC step."""
 
     def solve(self, x: np.ndarray, x_ref: np.ndarray, lever_arms: np.ndarray, plan: ContactPlan) -> MpcSolution:
-        """Solve for the forces; ``x_ref`` is (H, 12), ``plan`` arrays are (H, 4)."""
-        start = time.perf_counter()
-        self.set_model(x, lever_arms)
-        self.x0.value = x
-        self.x_ref.value = x_ref.T
-        self.mu.value = plan.mu.T
-        self.fz_min.value = plan.fz_min.T
-        self.fz_max.value = plan.fz_max.T
-        status, iterations, solve_time = "solver_error", 0, float("nan")
-        try:
-            with warnings.catch_warnings():  # the status is recorded; no console noise per step
-                warnings.simplefilter("ignore")
-                self.problem.solve(solver=self._solver, warm_start=self.solver_cfg.warm_start,
-                                   verbose=self.solver_cfg.verbose, **self._options)
-            status = self.problem.status
-            stats = self.problem.solver_stats
-            iterations = int(stats.num_iters or 0)
-            solve_time = float(stats.solve_time) if stats.solve_time is not None else float("nan")
-        except cp.error.SolverError:
-            pass
-        wall = time.perf_counter() - start
-        success = status in SUCCESS and self.u.value is not None
-        h = self.cfg.horizon
-        if success:
-            u = self.u.value
-            xs = self.x.value.T
-            err = xs[1:] - x_ref
-            objective = float(np.sum(self.q * err**2) + self.cfg.r_weight * np.sum(u**2))
-            return MpcSolution(forces=u[:, 0].reshape(4, 3), plan_fz=u[2::3, :].T.copy(), predicted=xs,
-                               status=status, success=True, iterations=iterations,
-                               solve_time_s=solve_time, wall_time_s=wall, objective=objective)
-        nan = np.full
-        return MpcSolution(forces=nan((4, 3), np.nan), plan_fz=nan((h, 4), np.nan),
-                           predicted=nan((h + 1, N_STATE), np.nan), status=status, success=False,
-                           iterations=iterations, solve_time_s=solve_time, wall_time_s=wall,
-                           objective=float("nan"))
+        """Forces for state ``x``; ``x_ref`` is (H, 12), ``plan`` arrays are (H, 4)."""
+        ...
+
+
+class DiscreteModel:
+    """The prediction model for one step, computed once and shared by a backend's build and rollout."""
+
+    __slots__ = ("a_c", "a", "b", "g")
+
+    def __init__(self, x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray,
+                 gravity: float, period: float) -> None:
+        a_c, b_c, g_c = _model(x, lever_arms, mass, inertia_body_inv, gravity)
+        self.a_c = a_c
+        self.a, self.b, self.g = _discretize(a_c, b_c, g_c, period)
+
+
+@njit(cache=True)
+def _rollout(x0: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray, g: np.ndarray, x_ref: np.ndarray,
+             q: np.ndarray, r: float) -> tuple[np.ndarray, float]:
+    h = u.shape[0]
+    xs = np.empty((h + 1, x0.shape[0]))
+    xs[0] = x0
+    cost = 0.0
+    for k in range(h):
+        xs[k + 1] = a @ xs[k] + b @ u[k] + g
+        e = xs[k + 1] - x_ref[k]
+        cost += np.sum(q * e * e) + r * np.sum(u[k] * u[k])
+    return xs, cost
+
+
+def solution_from_inputs(u: np.ndarray, x: np.ndarray, x_ref: np.ndarray, model: DiscreteModel, cfg: MpcConfig,
+                         status: str, iterations: int, solve_time_s: float, started: float) -> MpcSolution:
+    """A successful solution from the planned inputs ``u`` (H, 12); ``started`` is the solve's perf_counter().
+
+    The predicted states are rolled out through the model, so they satisfy the
+    dynamics exactly whatever the backend's equality tolerance, and the objective
+    is evaluated on them (paper eq. 8, without the solver's objective scaling).
+    The wall time covers the whole step: build or update, solve, and this rollout.
+    """
+    u = np.ascontiguousarray(u, dtype=float)
+    xs, cost = _rollout(x, u, model.a, model.b, model.g, np.ascontiguousarray(x_ref, dtype=float),
+                        np.asarray(cfg.q_diag, dtype=float), float(cfg.r_weight))
+    wall_time_s = time.perf_counter() - started
+    return MpcSolution(forces=u[0].reshape(4, 3).copy(), plan_fz=u[:, 2::3].copy(), predicted=xs, status=status,
+                       success=True, iterations=int(iterations), solve_time_s=float(solve_time_s),
+                       wall_time_s=float(wall_time_s), objective=float(cost), inputs=u)
+
+
+def failed_solution(horizon: int, status: str, iterations: int, solve_time_s: float,
+                    started: float) -> MpcSolution:
+    """A solve that produced no usable plan: the controller applies the last feasible input."""
+    wall_time_s = time.perf_counter() - started
+    nan = np.full
+    return MpcSolution(forces=nan((4, 3), np.nan), plan_fz=nan((horizon, 4), np.nan),
+                       predicted=nan((horizon + 1, N_STATE), np.nan), status=status, success=False,
+                       iterations=int(iterations), solve_time_s=float(solve_time_s), wall_time_s=float(wall_time_s),
+                       objective=float("nan"))
+
+
+def make_mpc(cfg_mpc: MpcConfig, cfg_solver: SolverConfig, mass: float, inertia_body: np.ndarray,
+             gravity: float) -> Mpc:
+    """The backend ``cfg_solver.name`` selects, built once for this robot and horizon."""
+    from .backends import backend_class
+
+    return backend_class(cfg_solver.name)(cfg_mpc, cfg_solver, mass, inertia_body, gravity)
+
+
+def __getattr__(name: str) -> Any:
+    # ``ConvexMpc`` is the CVXPY formulation under its original name (imported lazily: the
+    # backends import this module).
+    if name == "ConvexMpc":
+        from .backends.cvxpy_qp import CvxpyMpc
+
+        return CvxpyMpc
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def constraint_violations(forces: np.ndarray, plan: ContactPlan, weight: float, band: float) -> dict[str, float]:
@@ -218,4 +223,16 @@ def constraint_violations(forces: np.ndarray, plan: ContactPlan, weight: float, 
         "f_min": float(max(0.0, np.max(lo - fz))),
         "friction": float(max(0.0, np.max(np.abs(fx) - mu * fz), np.max(np.abs(fy) - mu * fz))),
         "balance": float(max(0.0, abs(total - weight) - band)),
+    }
+
+
+def plan_violations(u: np.ndarray, plan: ContactPlan, weight: float, band: float) -> dict[str, float]:
+    """Like :func:`constraint_violations` but over the whole plan ``u`` (H, 12): every step's inputs."""
+    f = np.asarray(u, dtype=float).reshape(-1, 4, 3)
+    fx, fy, fz = f[..., 0], f[..., 1], f[..., 2]
+    return {
+        "f_max": float(max(0.0, np.max(fz - plan.fz_max))),
+        "f_min": float(max(0.0, np.max(plan.fz_min - fz))),
+        "friction": float(max(0.0, np.max(np.abs(fx) - plan.mu * fz), np.max(np.abs(fy) - plan.mu * fz))),
+        "balance": float(max(0.0, np.max(np.abs(fz.sum(axis=1) - weight)) - band)),
     }

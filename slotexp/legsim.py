@@ -1,0 +1,408 @@
+"""Time stepping of one leg: loads, contact, tendon, root boundary, two integrators (numba).
+
+Loads on the rod besides its elasticity (:mod:`slotexp.leg`):
+
+- gravity on the node masses;
+- viscous damping of each node's velocity (and each element's angular velocity)
+  relative to the root, rate ``c`` (1/s), treated implicitly;
+- penalty ground contact at every node below z = 0, N = max(0, -k z - d dz/dt),
+  with the damping term implicit so it stays stable at any step;
+- regularised Coulomb friction along the leg plane, F = -mu N sat(v / v_eps), on the
+  actual normal force N, solved implicitly (a proximal step, unconditionally stable);
+- the tendon: a cable at ``offset`` below the centreline over the proximal
+  elements 0..na-1, anchored at node na. Its length is
+  L = sum_e a_e + offset (theta_{na-1} - theta_0) (a_e the elements' axial
+  lengths), its tension T = min(k_t max(0, L - L_free), T_max) acts as -T grad L:
+  an axial compression along the routed part and a distributed bending moment that
+  curls the leg down. ``L_free`` is the cable length the servo leaves out;
+- an optional static tip force and moment (for the leg experiment).
+
+The root (node 0 and element 0) follows prescribed kinematics. The force and
+moment the leg exerts on its root are returned as the reaction on the torso.
+
+Parameters are packed in ``par`` (see :data:`PAR`) so the kernels keep one
+signature; ``out`` receives reaction, tension and contact totals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .leg import LegModel, banded_solve, elastic_energy, elastic_forces, elastic_hessian_band
+
+PAR = ("gravity", "k_contact", "d_contact", "mu", "v_eps", "ground", "damping", "tendon_k", "tendon_offset",
+       "tendon_max", "tendon_free", "tip_fx", "tip_fz", "tip_m", "n_anchor")
+P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFREE, P_TFX, P_TFZ, P_TM, P_NA = range(15)
+OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged")
+O_FX, O_FZ, O_M, O_T, O_N, O_F, O_DIV = range(7)
+
+
+@njit(cache=True)
+def tendon_length(pos, theta, theta_root, par) -> float:
+    na = int(par[P_NA])
+    length = 0.0
+    for e in range(na):
+        length += (pos[e + 1, 0] - pos[e, 0]) * np.cos(theta[e]) + (pos[e + 1, 1] - pos[e, 1]) * np.sin(theta[e])
+    return length + par[P_TOFF] * (theta[na - 1] - theta_root)
+
+
+@njit(cache=True)
+def tendon_tension(pos, theta, theta_root, par) -> float:
+    stretch = tendon_length(pos, theta, theta_root, par) - par[P_TFREE]
+    if stretch <= 0.0:
+        return 0.0
+    return min(par[P_TK] * stretch, par[P_TMAX])
+
+
+@njit(cache=True)
+def _add_tendon(pos, theta, tension, par, force, moment):
+    """-T grad L into force/moment."""
+    na = int(par[P_NA])
+    for e in range(na):
+        c = np.cos(theta[e])
+        s = np.sin(theta[e])
+        force[e, 0] += tension * c
+        force[e, 1] += tension * s
+        force[e + 1, 0] -= tension * c
+        force[e + 1, 1] -= tension * s
+        b = -(pos[e + 1, 0] - pos[e, 0]) * s + (pos[e + 1, 1] - pos[e, 1]) * c
+        moment[e] -= tension * b
+    moment[na - 1] -= tension * par[P_TOFF]
+
+
+@njit(cache=True)
+def conservative_forces(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, ei, mass, par, force, moment):
+    """Elastic + tendon + gravity + tip load (no contact, no damping).
+
+    Returns (tension, moment on the root).
+    """
+    force[:] = 0.0
+    moment[:] = 0.0
+    m_root = elastic_forces(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment)
+    tension = tendon_tension(pos, theta, theta_root, par)
+    if tension > 0.0:
+        _add_tendon(pos, theta, tension, par, force, moment)
+        m_root += tension * par[P_TOFF]  # the cable leaves the root at the offset
+    n = pos.shape[0]
+    for i in range(n):
+        force[i, 1] -= mass[i] * par[P_G]
+    force[n - 1, 0] += par[P_TFX]
+    force[n - 1, 1] += par[P_TFZ]
+    moment[theta.shape[0] - 1] += par[P_TM]
+    return tension, m_root
+
+
+@njit(cache=True)
+def _set_root(pos, vel, root):
+    pos[0, 0] = root[0]
+    pos[0, 1] = root[1]
+    vel[0, 0] = root[2]
+    vel[0, 1] = root[3]
+
+
+@njit(cache=True)
+def _root_reaction(force, m_root, mass, par, out):
+    # node 0 belongs to the torso: its own weight is not a leg load
+    out[O_FX] = force[0, 0]
+    out[O_FZ] = force[0, 1] + mass[0] * par[P_G]
+    out[O_M] = m_root
+
+
+@njit(cache=True)
+def step_symplectic(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
+                    n_steps, normal, out):
+    """``n_steps`` of symplectic (semi-implicit) Euler with implicit damping, contact and friction.
+
+    ``root`` = [s, z, vs, vz, theta, omega] of the root, held over the call.
+    ``normal`` (N,) receives each node's contact normal force.
+    """
+    n = pos.shape[0]
+    n_el = theta.shape[0]
+    force = np.zeros((n, 2))
+    moment = np.zeros(n_el)
+    c = par[P_C]
+    k_c = par[P_K]
+    d_c = par[P_D]
+    mu = par[P_MU]
+    v_eps = par[P_VEPS]
+    ground = par[P_GROUND] > 0.5
+    for _ in range(n_steps):
+        _set_root(pos, vel, root)
+        tension, m_root = conservative_forces(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, mass, par,
+                                              force, moment)
+        _root_reaction(force, m_root, mass, par, out)
+        total_n = 0.0
+        total_f = 0.0
+        for i in range(1, n):
+            m = mass[i]
+            vx = (vel[i, 0] + h * (force[i, 0] / m + c * root[2])) / (1.0 + h * c)
+            vz = (vel[i, 1] + h * (force[i, 1] / m + c * root[3])) / (1.0 + h * c)
+            nrm = 0.0
+            if ground and pos[i, 1] < 0.0:
+                depth = -pos[i, 1]
+                vz_c = (vel[i, 1] + h * ((force[i, 1] + k_c * depth) / m + c * root[3])) / (1.0 + h * c + h * d_c / m)
+                nrm = k_c * depth - d_c * vz_c
+                if nrm > 0.0:
+                    vz = vz_c
+                    # proximal friction: v + beta sat(v / v_eps) = vx_free
+                    beta = h * mu * nrm / (m * (1.0 + h * c))
+                    if abs(vx) <= v_eps + beta:
+                        vx = vx / (1.0 + beta / v_eps)
+                    else:
+                        vx = vx - beta * np.sign(vx)
+                    total_f += -mu * nrm * max(-1.0, min(1.0, vx / v_eps))
+                else:
+                    nrm = 0.0
+            normal[i] = nrm
+            total_n += nrm
+            vel[i, 0] = vx
+            vel[i, 1] = vz
+        for e in range(n_el):
+            omega[e] = (omega[e] + h * (moment[e] / inertia[e] + c * root[5])) / (1.0 + h * c)
+        for i in range(1, n):
+            pos[i, 0] += h * vel[i, 0]
+            pos[i, 1] += h * vel[i, 1]
+        for e in range(n_el):
+            theta[e] += h * omega[e]
+        out[O_T] = tension
+        out[O_N] = total_n
+        out[O_F] = total_f
+        if not (np.isfinite(pos[n - 1, 0]) and np.isfinite(pos[n - 1, 1]) and abs(pos[n - 1, 0]) < 100.0
+                and abs(pos[n - 1, 1]) < 100.0):
+            out[O_DIV] = 1.0
+            return
+    _set_root(pos, vel, root)
+
+
+@njit(cache=True)
+def step_implicit(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
+                  n_steps, normal, out):
+    """``n_steps`` of linearly implicit Euler: (M - h^2 K - h C) v' = M v + h F - h C v.
+
+    K and C are the exact Jacobians of every load (elasticity, tendon, contact,
+    friction, damping) at the start of the step; the tendon adds a rank-one term,
+    handled by Sherman-Morrison around the banded solve. Root DOFs are rows of the
+    identity with the prescribed velocity on the right.
+    """
+    n = pos.shape[0]
+    n_el = theta.shape[0]
+    nd = 3 * n - 1
+    force = np.zeros((n, 2))
+    moment = np.zeros(n_el)
+    band = np.zeros((nd, 9))
+    rhs = np.zeros(nd)
+    grad_l = np.zeros(nd)
+    c = par[P_C]
+    k_c = par[P_K]
+    d_c = par[P_D]
+    mu = par[P_MU]
+    v_eps = par[P_VEPS]
+    ground = par[P_GROUND] > 0.5
+    na = int(par[P_NA])
+    h2 = h * h
+    for _ in range(n_steps):
+        _set_root(pos, vel, root)
+        tension, m_root = conservative_forces(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, mass, par,
+                                              force, moment)
+        _root_reaction(force, m_root, mass, par, out)
+        band[:, :] = 0.0
+        # -h^2 K_elastic = +h^2 H
+        elastic_hessian_band(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, band, h2)
+        # tendon: band part T * hess(L), rank-one part k_t grad L grad L^T
+        taut = tension > 0.0 and tension < par[P_TMAX]
+        grad_l[:] = 0.0
+        if tension > 0.0:
+            for e in range(na):
+                ce = np.cos(theta[e])
+                se = np.sin(theta[e])
+                dx = pos[e + 1, 0] - pos[e, 0]
+                dz = pos[e + 1, 1] - pos[e, 1]
+                a = dx * ce + dz * se
+                b = -dx * se + dz * ce
+                grad_l[3 * e] -= ce
+                grad_l[3 * e + 1] -= se
+                grad_l[3 * e + 3] += ce
+                grad_l[3 * e + 4] += se
+                grad_l[3 * e + 2] += b
+                # Hessian of a_e: d2a/dDelta dtheta = d1, d2a/dtheta2 = -a
+                th = 3 * e + 2
+                for comp in range(2):
+                    d1 = -se if comp == 0 else ce
+                    for node, sg in ((3 * e + comp, -1.0), (3 * e + 3 + comp, 1.0)):
+                        band[node, 4 + th - node] += h2 * tension * sg * d1
+                        band[th, 4 + node - th] += h2 * tension * sg * d1
+                band[th, 4] += h2 * tension * (-a)
+            grad_l[3 * (na - 1) + 2] += par[P_TOFF]
+        # mass, damping, and the right-hand side M v + h F (damping enters implicitly)
+        for i in range(n):
+            for comp in range(2):
+                d = 3 * i + comp
+                m = mass[i]
+                band[d, 4] += m * (1.0 + h * c)
+                rhs[d] = m * vel[i, comp] + h * (force[i, comp] + c * m * root[2 + comp])
+        for e in range(n_el):
+            d = 3 * e + 2
+            band[d, 4] += inertia[e] * (1.0 + h * c)
+            rhs[d] = inertia[e] * omega[e] + h * (moment[e] + c * inertia[e] * root[5])
+        # contact and friction, linearised
+        total_n = 0.0
+        total_f = 0.0
+        for i in range(1, n):
+            normal[i] = 0.0
+            if ground and pos[i, 1] < 0.0:
+                depth = -pos[i, 1]
+                nrm = k_c * depth - d_c * vel[i, 1]
+                if nrm > 0.0:
+                    dz = 3 * i + 1
+                    dx = 3 * i
+                    # N = -k z - d vz  -> dF/dz = -k, dF/dvz = -d
+                    band[dz, 4] += h2 * k_c + h * d_c
+                    rhs[dz] += h * nrm + h * d_c * vel[i, 1]
+                    # F_x = -mu N sat(vx/v_eps)
+                    vx = vel[i, 0]
+                    r = vx / v_eps
+                    sat = max(-1.0, min(1.0, r))
+                    fx = -mu * nrm * sat
+                    rhs[dx] += h * fx
+                    if abs(r) < 1.0:
+                        band[dx, 4] += h * mu * nrm / v_eps
+                        rhs[dx] += h * mu * nrm / v_eps * vx
+                    # coupling through N: dFx/dz = mu k sat, dFx/dvz = mu d sat
+                    band[dx, 4 + 1] += -h2 * mu * k_c * sat - h * mu * d_c * sat
+                    rhs[dx] += -h * mu * d_c * sat * vel[i, 1]
+                    normal[i] = nrm
+                    total_n += nrm
+                    total_f += fx
+        # the clamp angle moves at root[5] over the step: its spring acts on theta_0
+        rhs[2] += h2 * ei[0] / voronoi[0] * root[5]
+        # prescribed root node: identity rows
+        for d in range(2):
+            for k in range(9):
+                band[d, k] = 0.0
+            band[d, 4] = 1.0
+        rhs[0] = root[2]
+        rhs[1] = root[3]
+        if taut:
+            # the tension also changes as the root angle turns over the step
+            shift = h2 * par[P_TK] * par[P_TOFF] * root[5]
+            for d in range(2, nd):
+                rhs[d] += shift * grad_l[d]
+            u = grad_l * (h2 * par[P_TK])
+            u[0] = 0.0
+            u[1] = 0.0
+            work = band.copy()
+            y = banded_solve(work, rhs)
+            work[:, :] = band
+            z = banded_solve(work, u)
+            vy = 0.0
+            vz_ = 0.0
+            for d in range(nd):
+                vy += grad_l[d] * y[d]
+                vz_ += grad_l[d] * z[d]
+            x = y - z * (vy / (1.0 + vz_))
+        else:
+            x = banded_solve(band, rhs)
+        for i in range(n):
+            vel[i, 0] = x[3 * i]
+            vel[i, 1] = x[3 * i + 1]
+            pos[i, 0] += h * vel[i, 0]
+            pos[i, 1] += h * vel[i, 1]
+        for e in range(n_el):
+            omega[e] = x[3 * e + 2]
+            theta[e] += h * omega[e]
+        out[O_T] = tension
+        out[O_N] = total_n
+        out[O_F] = total_f
+        if not (np.isfinite(pos[n - 1, 0]) and np.isfinite(pos[n - 1, 1]) and abs(pos[n - 1, 0]) < 100.0
+                and abs(pos[n - 1, 1]) < 100.0):
+            out[O_DIV] = 1.0
+            return
+    _set_root(pos, vel, root)
+
+
+class DivergenceError(RuntimeError):
+    """The leg state blew up; the message names the step and the stability limit."""
+
+
+def stable_dt(model: LegModel, k_contact: float = 0.0, d_contact: float = 0.0) -> float:
+    """Largest stable symplectic-Euler step: 2 / omega_max of M^-1 K at rest (contact on every node).
+
+    Contact damping is implicit in both integrators, so it does not limit the step.
+    """
+    from scipy.linalg import eigh
+
+    n = model.n_nodes
+    nd = 3 * n - 1
+    band = np.zeros((nd, 9))
+    elastic_hessian_band(model.rest_pos, model.rest_theta, model.rest_theta[0], model.l0, model.voronoi, model.dtheta0, model.ea,
+                         model.ga, model.ei, band, 1.0)
+    k = np.zeros((nd, nd))
+    for i in range(nd):
+        for j in range(max(0, i - 4), min(nd, i + 5)):
+            k[i, j] = band[i, 4 + j - i]
+    m = np.zeros(nd)
+    m[0::3] = model.mass
+    m[1::3] = model.mass
+    m[2::3] = model.inertia
+    for i in range(n):
+        k[3 * i + 1, 3 * i + 1] += k_contact
+    free = np.arange(2, nd)  # the root node is clamped; its angle is the clamp vertex's reference
+    lam = eigh(k[np.ix_(free, free)], np.diag(m[free]), eigvals_only=True)
+    return float(2.0 / np.sqrt(lam.max()))
+
+
+class LegSim:
+    """One leg's state and parameters, stepped by either integrator."""
+
+    def __init__(self, model: LegModel, par: np.ndarray) -> None:
+        self.model = model
+        self.par = np.asarray(par, dtype=float)
+        self.pos = model.rest_pos.copy()
+        self.vel = np.zeros_like(self.pos)
+        self.theta = model.rest_theta.copy()
+        self.omega = np.zeros_like(self.theta)
+        self.root = np.array([self.pos[0, 0], self.pos[0, 1], 0.0, 0.0, self.theta[0], 0.0])
+        self.normal = np.zeros(model.n_nodes)
+        self.out = np.zeros(len(OUT))
+        self.time = 0.0
+
+    def step(self, h: float, n_steps: int = 1, integrator: str = "symplectic") -> None:
+        kernel = step_implicit if integrator == "implicit" else step_symplectic
+        m = self.model
+        kernel(self.pos, self.vel, self.theta, self.omega, m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei, m.mass,
+               m.inertia, self.par, self.root, h, n_steps, self.normal, self.out)
+        self.time += h * n_steps
+        if self.out[O_DIV] > 0.0:
+            limit = stable_dt(m, self.par[P_K] if self.par[P_GROUND] > 0.5 else 0.0)
+            raise DivergenceError(
+                f"the leg simulation diverged at t = {self.time:.4g} s with sim.dt = {h:.3g} s ({integrator}); "
+                f"the explicit stability limit for this leg is about {limit:.3g} s: lower sim.dt or use "
+                f"sim.integrator=implicit")
+
+    def energy(self) -> float:
+        """Kinetic + elastic + gravitational + tendon energy (no contact), J."""
+        m = self.model
+        kin = 0.5 * np.sum(m.mass[:, None] * self.vel**2) + 0.5 * np.sum(m.inertia * self.omega**2)
+        el = elastic_energy(self.pos, self.theta, self.root[4], m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei)
+        grav = self.par[P_G] * np.sum(m.mass * self.pos[:, 1])
+        stretch = max(0.0, tendon_length(self.pos, self.theta, self.root[4], self.par) - self.par[P_TFREE])
+        tendon = 0.5 * self.par[P_TK] * stretch**2
+        work = -(self.par[P_TFX] * self.pos[-1, 0] + self.par[P_TFZ] * self.pos[-1, 1] + self.par[P_TM] * self.theta[-1])
+        return float(kin + el + grav + tendon + work)
+
+    @property
+    def tip(self) -> np.ndarray:
+        return self.pos[-1].copy()
+
+
+def make_par(**kw: float) -> np.ndarray:
+    """Pack loads and contact settings; unspecified entries are zero (no ground, no tendon)."""
+    par = np.zeros(len(PAR))
+    par[P_VEPS] = 1e-3
+    par[P_TMAX] = np.inf
+    par[P_TFREE] = np.inf
+    par[P_NA] = 1
+    for key, value in kw.items():
+        par[PAR.index(key)] = value
+    return par
