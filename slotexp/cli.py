@@ -18,7 +18,9 @@ import typer
 from .config import ConfigError, validate
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
-GROUPS = ("robot", "gait", "solver", "plant", "experiment", "scenario")
+GROUPS = ("robot", "gait", "solver", "plant", "experiment", "scenario", "actuation")
+HARDWARE_GROUPS = ("robot", "gait", "solver", "plant", "hardware", "odometry")
+HARDWARE_CONFIG = "hardware_config"
 HELP_FLAGS = {"--hydra-help", "--help", "-h", "--shell-completion", "-sc"}
 VALUE_FLAGS = {"--cfg", "-c", "--package", "-p", "--config-path", "-cp", "--config-name", "-cn",
                "--config-dir", "-cd", "--experimental-rerun", "--info", "-i"}
@@ -85,7 +87,8 @@ def _override_text(o, value: str) -> str:
     return f"{prefix}{key}={value}"
 
 
-def precheck(overrides: list[str], multirun: bool) -> None:
+def precheck(overrides: list[str], multirun: bool, config_name: str = "config", groups: tuple[str, ...] = GROUPS,
+             loader=None) -> None:
     """Compose and validate every combination the run would launch; fail with one line."""
     from hydra import compose, initialize_config_dir
     from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -106,7 +109,7 @@ def precheck(overrides: list[str], multirun: bool) -> None:
         else:
             values = [o.get_value_element_as_str()] if not o.is_delete() or o.value() is not None else [""]
         group = o.key_or_group.split("@")[0]
-        if group in GROUPS:
+        if group in groups:
             options = group_options(group)
             for v in values:
                 if v not in options:
@@ -119,11 +122,11 @@ def precheck(overrides: list[str], multirun: bool) -> None:
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         for combo in combos:
             try:
-                cfg = compose("config", overrides=list(combo))
+                cfg = compose(config_name, overrides=list(combo))
             except (HydraException, OmegaConfBaseException) as exc:
                 fail(_compose_message(exc))
             try:
-                load_config(cfg)
+                (loader or load_config)(cfg)
             except ConfigError as exc:
                 fail(str(exc))
             except (OmegaConfBaseException, ValueError, TypeError) as exc:
@@ -182,6 +185,70 @@ def run(ctx: typer.Context) -> None:
     register_schemas()
     sys.argv = ["slot", *args]
     main_fn = hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")(_hydra_task)
+    main_fn()
+
+
+def _hardware_task(cfg) -> None:
+    """What Hydra runs for `slot hardware`: check, run the loop, report, print the output dir last."""
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+
+    from .hardware.config import load_hardware_config
+    from .hardware.run import run_hardware
+    from .jobs.logged import git_commit
+
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    try:
+        hw_cfg = load_hardware_config(cfg)
+        result = run_hardware(hw_cfg, out_dir, OmegaConf.to_yaml(cfg), lambda m: typer.echo(m, err=True),
+                              git_commit())
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+    if result.outcome is not None and result.outcome.steps >= 2:
+        from .hardware.report import report
+
+        try:
+            report(out_dir, list(hw_cfg.gait.velocity), list(hw_cfg.robot.leg.names))
+        except Exception as exc:  # the run's outcome matters more than its figures
+            typer.echo(f"warning: metrics/figures not written: {exc}", err=True)
+    if result.message:
+        prefix = "error: " if result.exit_code not in (0, 130, 143) else ""
+        typer.echo(f"{prefix}{result.message}", err=True)
+    typer.echo(str(out_dir))
+    if result.exit_code:
+        raise SystemExit(result.exit_code)
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True,
+                               "help_option_names": ["--help"]})
+def hardware(ctx: typer.Context,
+             dry_run: bool = typer.Option(False, "--dry-run", help="Run the whole loop with torque off and "
+                                          "never write Goal Position; log what would be sent.")) -> None:
+    """Run the MPC on the robot (four XL430 servos, VIO odometry). Arguments are Hydra overrides.
+
+    Groups: hardware (xl430), odometry (zmq, replay, sim), and robot, gait, solver, plant as
+    for `slot run`. Keys: hardware.port, hardware.baudrate, hardware.ids, odometry.endpoint,
+    duration (s; default: until Ctrl-C). Writes logs/hardware.mcap to
+    experiments/hardware/<timestamp>/ (hydra.run.dir=DIR overrides) and prints that directory
+    last. Try --dry-run first; odometry=sim runs the loop against the simulator (HIL).
+    """
+    import hydra
+
+    from .config import register_schemas
+    from .hardware.config import load_hardware_config
+
+    args = list(ctx.args)
+    overrides, multirun, info = _split(args)
+    if multirun:
+        fail("slot hardware drives one robot: -m (multirun) is not supported")
+    if dry_run:
+        args.append("dry_run=true")
+        overrides.append("dry_run=true")
+    if not info:
+        precheck(overrides, False, HARDWARE_CONFIG, HARDWARE_GROUPS, load_hardware_config)
+    register_schemas()
+    sys.argv = ["slot", *args]
+    main_fn = hydra.main(config_path=str(CONF_DIR), config_name=HARDWARE_CONFIG, version_base="1.3")(_hardware_task)
     main_fn()
 
 
@@ -270,6 +337,10 @@ def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (
             exp = conf.experiment
             perturb.report(run_dir, float(exp.settle_fraction), float(exp.get("settle_hold_s", 1.0)),
                            {n: i for i, n in enumerate(exp.scenarios)})
+        elif experiment == "hardware":
+            from .hardware.report import report_from_log
+
+            report_from_log(run_dir, conf)
         elif experiment == "simulate":
             from .jobs import simulate
 

@@ -34,6 +34,9 @@ __all__ = [
     "PerturbExperiment",
     "SimulateExperiment",
     "ValidateExperiment",
+    "LegExperiment",
+    "CalibrateExperiment",
+    "LegLoad",
     "LogConfig",
     "SlotConfig",
     "validate",
@@ -101,6 +104,25 @@ class ContactConfig:
     stiffness: float = _num(1.0e5, lo=0.0, lo_open=True, unit="N/m")
     damping: float = _num(10.0, lo=0.0, unit="N s/m")
     friction: float = _num(0.1, lo=0.0, unit="")
+    slip_velocity: float = _num(1.0e-3, lo=0.0, lo_open=True, unit="m/s")  # friction regularisation
+
+
+@dataclass
+class TendonConfig:
+    """The tendon: a cable at an offset below the leg's centreline over its proximal part."""
+
+    offset: float = _num(0.010, lo=0.0, lo_open=True, unit="m")
+    routed_fraction: float = _num(2.0 / 3.0, lo=0.0, lo_open=True, hi=1.0, unit="")
+    stiffness: float = _num(2.0e4, lo=0.0, lo_open=True, unit="N/m")
+    slack: float = _num(0.0, lo=0.0, unit="m")
+
+
+@dataclass
+class ServoConfig:
+    """Position-controlled XL430-like servo: first-order lag, stall torque, pulley."""
+
+    stall_torque: float = _num(1.4, lo=0.0, lo_open=True, unit="N m")
+    time_constant: float = _num(0.005, lo=0.0, lo_open=True, unit="s")
 
 
 @dataclass
@@ -117,6 +139,8 @@ class RobotConfig:
     torso: TorsoConfig = field(default_factory=TorsoConfig)
     leg: LegConfig = field(default_factory=LegConfig)
     contact: ContactConfig = field(default_factory=ContactConfig)
+    tendon: TendonConfig = field(default_factory=TendonConfig)
+    servo: ServoConfig = field(default_factory=ServoConfig)
     actuation: ActuationConfig = field(default_factory=ActuationConfig)
 
 
@@ -148,6 +172,12 @@ class GaitConfig:
     mu_stance: float = _num(0.6, lo=0.0, unit="")
     mu_swing: float = _num(0.2, lo=0.0, unit="")
     swing_contact: bool = True
+    # Tendon schedule: a contracting (swing) leg's tendon angle gets this much on top of
+    # the MPC's force-to-angle command, with a ramp / hold / decay over its phase.
+    tendon_amplitude_deg: float = _num(25.0, lo=0.0, hi=360.0, unit="deg")
+    tendon_ramp: float = _num(0.2, lo=0.0, hi=1.0, unit="of the phase")
+    tendon_hold: float = _num(0.6, lo=0.0, hi=1.0, unit="of the phase")
+    tendon_decay: float = _num(0.2, lo=0.0, hi=1.0, unit="of the phase")
 
 
 @dataclass
@@ -171,9 +201,14 @@ class MpcConfig:
 
 @dataclass
 class SolverConfig:
-    """QP backend and the settings every backend accepts."""
+    """QP backend (``slotexp/backends``) and the settings every backend accepts.
 
-    name: str = _choice("clarabel", "scs", "osqp", "clarabel")
+    ``clarabel``, ``scs``, ``osqp`` solve through CVXPY; ``osqp_direct`` and ``daqp``
+    call their solvers directly. A solve stopped by ``max_iters`` or ``time_limit_s``
+    counts as failed and the controller applies the last feasible input.
+    """
+
+    name: str = _choice("clarabel", "scs", "osqp", "clarabel", "osqp_direct", "daqp")
     eps_abs: float = _num(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
     eps_rel: float = _num(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
     max_iters: int = _num(10000, lo=1, unit="")
@@ -184,7 +219,8 @@ class SolverConfig:
 
 @dataclass
 class PlantConfig:
-    name: str = _choice("ideal", "ideal")
+    name: str = _choice("ideal", "ideal", "cosserat")
+    integrator: str = _choice("implicit", "implicit", "symplectic")  # soft legs only
 
 
 # --------------------------------------------------------------------------- scenarios
@@ -275,6 +311,37 @@ class ValidateExperiment:
 
 
 @dataclass
+class LegLoad:
+    """A single leg clamped at its root (experiments ``leg`` and ``calibrate``)."""
+
+    tip_force: list[float] = _vec([0.0, 0.0], length=2, unit="N")  # [along the leg plane, vertical]
+    tip_moment: float = _num(0.0, unit="N m")
+    tendon_deg: float = _num(0.0, lo=0.0, hi=360.0, unit="deg")
+    ground: bool = True
+    root_height: Optional[float] = None   # m above the ground; None: the rest shape's (tip just touching)
+    settle_time: float = _num(3.0, lo=0.0, lo_open=True, unit="s")
+    dt: float = _num(1.0e-4, lo=0.0, lo_open=True, hi=1e-2, unit="s")
+    integrator: str = _choice("implicit", "implicit", "symplectic")
+
+
+@dataclass
+class LegExperiment:
+    """Static response of one clamped leg to ``leg_load``: tip position and angle."""
+
+    name: str = "leg"
+
+
+@dataclass
+class CalibrateExperiment:
+    """Quasi-static sweep of tendon angle against ground normal force: theta = (f_z - b) / a."""
+
+    name: str = "calibrate"
+    angles: int = _num(25, lo=3, hi=1000, unit="points")
+    max_deg: Optional[float] = None     # None: robot.leg.tendon_max_deg
+    fit_min_force: float = _num(0.5, lo=0.0, unit="N")  # fit only where the foot is loaded
+
+
+@dataclass
 class LogConfig:
     enabled: bool = True
 
@@ -291,6 +358,7 @@ class SlotConfig:
     sim: SimConfig = field(default_factory=SimConfig)
     mpc: MpcConfig = field(default_factory=MpcConfig)
     log: LogConfig = field(default_factory=LogConfig)
+    leg_load: LegLoad = field(default_factory=LegLoad)
     experiment: Any = None
 
 
@@ -364,6 +432,10 @@ def validate(cfg: SlotConfig) -> SlotConfig:
     if len(leg.names) != 4:
         raise ConfigError(f"robot.leg.names has {len(leg.names)} entries: SLOT has exactly 4 legs")
     _check_gait(cfg.gait)
+    g = cfg.gait
+    if g.tendon_ramp + g.tendon_hold + g.tendon_decay > 1.0 + 1e-9:
+        raise ConfigError(f"gait.tendon_ramp + tendon_hold + tendon_decay = "
+                          f"{g.tendon_ramp + g.tendon_hold + g.tendon_decay:g}: they share one phase, keep it <= 1")
     if cfg.mpc.f_min_stance > cfg.mpc.f_max:
         raise ConfigError(f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = "
                           f"{cfg.mpc.f_max:g} N: lower it")
@@ -383,7 +455,7 @@ def validate(cfg: SlotConfig) -> SlotConfig:
             raise ConfigError("experiment.reference is not set: pass experiment.reference=<run dir, .mcap "
                               "log or marker .csv>")
     elif exp is None:
-        raise ConfigError("no experiment selected: pass experiment=perturb, simulate or validate")
+        raise ConfigError("no experiment selected: pass experiment=perturb, simulate, validate, leg or calibrate")
     return cfg
 
 
@@ -391,6 +463,8 @@ EXPERIMENT_SCHEMAS = {
     "perturb": PerturbExperiment,
     "simulate": SimulateExperiment,
     "validate": ValidateExperiment,
+    "leg": LegExperiment,
+    "calibrate": CalibrateExperiment,
 }
 
 
@@ -402,3 +476,6 @@ def register_schemas() -> None:
     cs.store(name="slot_schema", node=SlotConfig)
     for name, schema in EXPERIMENT_SCHEMAS.items():
         cs.store(group="experiment", name=f"{name}_schema", node=schema)
+    from .hardware.config import register_hardware_schemas  # `slot hardware`'s root schema
+
+    register_hardware_schemas(cs)

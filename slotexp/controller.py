@@ -13,7 +13,7 @@ import numpy as np
 
 from .actuation import tendon_angle_deg
 from .config import SlotConfig
-from .gait import ContactPlan, GaitMatrix, contact_plan
+from .gait import ContactPlan, GaitMatrix, contact_plan, tendon_profile
 from .mpc import ConvexMpc, MpcSolution, constraint_violations
 from .reference import reference
 from .robot import RobotModel
@@ -40,6 +40,7 @@ class Controller:
         self.weight = robot.mass * cfg.sim.gravity
         self.last_feasible = np.tile([0.0, 0.0, self.weight / 4.0], (4, 1))
         self.infeasible_steps = 0
+        self.steps = 0
 
     def step(self, t: float, x: np.ndarray, feet: np.ndarray) -> ControlStep:
         horizon = self.cfg.mpc.horizon
@@ -55,6 +56,11 @@ class Controller:
             self.infeasible_steps += 1
         self.gait.roll()
         violations = constraint_violations(forces, plan, self.weight, self.cfg.mpc.force_balance_band)
-        tendon = tendon_angle_deg(forces[:, 2], self.cfg.robot.actuation, self.cfg.robot.leg.tendon_max_deg)
+        gait = self.cfg.gait
+        schedule = gait.tendon_amplitude_deg * tendon_profile(gait.phases, self.steps, gait.tendon_ramp,
+                                                               gait.tendon_hold, gait.tendon_decay)
+        tendon = np.clip(tendon_angle_deg(forces[:, 2], self.cfg.robot.actuation, self.cfg.robot.leg.tendon_max_deg)
+                         + schedule, 0.0, self.cfg.robot.leg.tendon_max_deg)
+        self.steps += 1
         return ControlStep(forces=forces, tendon_deg=tendon, solution=solution, plan=plan, x_ref=x_ref,
                            fallback=not solution.success, violations=violations)

@@ -78,3 +78,30 @@ def contact_plan(stance: np.ndarray, gait: GaitConfig, f_min_stance: float, f_ma
         fz_max = np.where(stance, f_max, 0.0)
         mu = np.where(stance, mu, 0.0)
     return ContactPlan(stance=stance, mu=mu, fz_min=fz_min, fz_max=fz_max)
+
+
+def tendon_profile(phases: list[list[int]], step: int, ramp: float, hold: float, decay: float) -> np.ndarray:
+    """Per-leg tendon schedule in [0, 1] at MPC step ``step``: ramp / hold / decay over the
+    phase for legs that swing (contract) in it, 0 for stance legs.
+
+    ``ramp``, ``hold`` and ``decay`` are fractions of the phase's duration (the authors'
+    crawl uses 0.2 / 0.6 / 0.2 of a 1 s phase).
+    """
+    rows = [r for r in phases if r[0] > 0]
+    period = sum(int(r[0]) for r in rows)
+    k = step % period
+    for row in rows:
+        if k < row[0]:
+            break
+        k -= row[0]
+    f = (k + 0.5) / row[0]
+    if f < ramp:
+        level = f / ramp
+    elif f < ramp + hold:
+        level = 1.0
+    elif f < ramp + hold + decay:
+        level = 1.0 - (f - ramp - hold) / decay
+    else:
+        level = 0.0
+    swing = np.asarray(row[1:]) == 0
+    return np.where(swing, level, 0.0)

@@ -110,89 +110,93 @@ def _root_reaction(force, m_root, mass, par, out):
 
 
 @njit(cache=True)
-def step_symplectic(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
-                    n_steps, normal, out):
-    """``n_steps`` of symplectic (semi-implicit) Euler with implicit damping, contact and friction.
+def symplectic_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
+                    normal, out, force, moment):
+    """One symplectic (semi-implicit) Euler step with implicit damping, contact and friction.
 
-    ``root`` = [s, z, vs, vz, theta, omega] of the root, held over the call.
-    ``normal`` (N,) receives each node's contact normal force.
+    ``root`` = [s, z, vs, vz, theta, omega] of the root over the step.
+    ``normal`` (N,) receives each node's contact normal force; ``force``/``moment`` are work arrays.
     """
     n = pos.shape[0]
     n_el = theta.shape[0]
-    force = np.zeros((n, 2))
-    moment = np.zeros(n_el)
     c = par[P_C]
     k_c = par[P_K]
     d_c = par[P_D]
     mu = par[P_MU]
     v_eps = par[P_VEPS]
     ground = par[P_GROUND] > 0.5
-    for _ in range(n_steps):
-        _set_root(pos, vel, root)
-        tension, m_root = conservative_forces(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, mass, par,
-                                              force, moment)
-        _root_reaction(force, m_root, mass, par, out)
-        total_n = 0.0
-        total_f = 0.0
-        for i in range(1, n):
-            m = mass[i]
-            vx = (vel[i, 0] + h * (force[i, 0] / m + c * root[2])) / (1.0 + h * c)
-            vz = (vel[i, 1] + h * (force[i, 1] / m + c * root[3])) / (1.0 + h * c)
-            nrm = 0.0
-            if ground and pos[i, 1] < 0.0:
-                depth = -pos[i, 1]
-                vz_c = (vel[i, 1] + h * ((force[i, 1] + k_c * depth) / m + c * root[3])) / (1.0 + h * c + h * d_c / m)
-                nrm = k_c * depth - d_c * vz_c
-                if nrm > 0.0:
-                    vz = vz_c
-                    # proximal friction: v + beta sat(v / v_eps) = vx_free
-                    beta = h * mu * nrm / (m * (1.0 + h * c))
-                    if abs(vx) <= v_eps + beta:
-                        vx = vx / (1.0 + beta / v_eps)
-                    else:
-                        vx = vx - beta * np.sign(vx)
-                    total_f += -mu * nrm * max(-1.0, min(1.0, vx / v_eps))
+    _set_root(pos, vel, root)
+    tension, m_root = conservative_forces(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, mass, par,
+                                          force, moment)
+    _root_reaction(force, m_root, mass, par, out)
+    total_n = 0.0
+    total_f = 0.0
+    for i in range(1, n):
+        m = mass[i]
+        vx = (vel[i, 0] + h * (force[i, 0] / m + c * root[2])) / (1.0 + h * c)
+        vz = (vel[i, 1] + h * (force[i, 1] / m + c * root[3])) / (1.0 + h * c)
+        nrm = 0.0
+        if ground and pos[i, 1] < 0.0:
+            depth = -pos[i, 1]
+            vz_c = (vel[i, 1] + h * ((force[i, 1] + k_c * depth) / m + c * root[3])) / (1.0 + h * c + h * d_c / m)
+            nrm = k_c * depth - d_c * vz_c
+            if nrm > 0.0:
+                vz = vz_c
+                # proximal friction: v + beta sat(v / v_eps) = v_free
+                beta = h * mu * nrm / (m * (1.0 + h * c))
+                if abs(vx) <= v_eps + beta:
+                    vx = vx / (1.0 + beta / v_eps)
                 else:
-                    nrm = 0.0
-            normal[i] = nrm
-            total_n += nrm
-            vel[i, 0] = vx
-            vel[i, 1] = vz
-        for e in range(n_el):
-            omega[e] = (omega[e] + h * (moment[e] / inertia[e] + c * root[5])) / (1.0 + h * c)
-        for i in range(1, n):
-            pos[i, 0] += h * vel[i, 0]
-            pos[i, 1] += h * vel[i, 1]
-        for e in range(n_el):
-            theta[e] += h * omega[e]
-        out[O_T] = tension
-        out[O_N] = total_n
-        out[O_F] = total_f
-        if not (np.isfinite(pos[n - 1, 0]) and np.isfinite(pos[n - 1, 1]) and abs(pos[n - 1, 0]) < 100.0
-                and abs(pos[n - 1, 1]) < 100.0):
-            out[O_DIV] = 1.0
+                    vx = vx - beta * np.sign(vx)
+                total_f += -mu * nrm * max(-1.0, min(1.0, vx / v_eps))
+            else:
+                nrm = 0.0
+        normal[i] = nrm
+        total_n += nrm
+        vel[i, 0] = vx
+        vel[i, 1] = vz
+    for e in range(n_el):
+        omega[e] = (omega[e] + h * (moment[e] / inertia[e] + c * root[5])) / (1.0 + h * c)
+    for i in range(1, n):
+        pos[i, 0] += h * vel[i, 0]
+        pos[i, 1] += h * vel[i, 1]
+    for e in range(n_el):
+        theta[e] += h * omega[e]
+    out[O_T] = tension
+    out[O_N] = total_n
+    out[O_F] = total_f
+    if not (np.isfinite(pos[n - 1, 0]) and np.isfinite(pos[n - 1, 1]) and abs(pos[n - 1, 0]) < 100.0
+            and abs(pos[n - 1, 1]) < 100.0):
+        out[O_DIV] = 1.0
+
+
+@njit(cache=True)
+def step_symplectic(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
+                    n_steps, normal, out):
+    """``n_steps`` of :func:`symplectic_once` with the root held."""
+    force = np.zeros(pos.shape)
+    moment = np.zeros(theta.shape[0])
+    for _ in range(n_steps):
+        symplectic_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
+                        normal, out, force, moment)
+        if out[O_DIV] > 0.0:
             return
     _set_root(pos, vel, root)
 
 
 @njit(cache=True)
-def step_implicit(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
-                  n_steps, normal, out):
-    """``n_steps`` of linearly implicit Euler: (M - h^2 K - h C) v' = M v + h F - h C v.
+def implicit_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
+                  normal, out, force, moment, band, rhs, grad_l):
+    """One linearly implicit Euler step: (M - h^2 K - h C) v' = M v + h F - h C v.
 
     K and C are the exact Jacobians of every load (elasticity, tendon, contact,
     friction, damping) at the start of the step; the tendon adds a rank-one term,
-    handled by Sherman-Morrison around the banded solve. Root DOFs are rows of the
-    identity with the prescribed velocity on the right.
+    handled by Sherman-Morrison around the banded solve. The root node's rows are
+    rows of the identity with the prescribed velocity on the right.
     """
     n = pos.shape[0]
     n_el = theta.shape[0]
     nd = 3 * n - 1
-    force = np.zeros((n, 2))
-    moment = np.zeros(n_el)
-    band = np.zeros((nd, 9))
-    rhs = np.zeros(nd)
-    grad_l = np.zeros(nd)
     c = par[P_C]
     k_c = par[P_K]
     d_c = par[P_D]
@@ -201,122 +205,137 @@ def step_implicit(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass
     ground = par[P_GROUND] > 0.5
     na = int(par[P_NA])
     h2 = h * h
-    for _ in range(n_steps):
-        _set_root(pos, vel, root)
-        tension, m_root = conservative_forces(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, mass, par,
-                                              force, moment)
-        _root_reaction(force, m_root, mass, par, out)
-        band[:, :] = 0.0
-        # -h^2 K_elastic = +h^2 H
-        elastic_hessian_band(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, band, h2)
-        # tendon: band part T * hess(L), rank-one part k_t grad L grad L^T
-        taut = tension > 0.0 and tension < par[P_TMAX]
-        grad_l[:] = 0.0
-        if tension > 0.0:
-            for e in range(na):
-                ce = np.cos(theta[e])
-                se = np.sin(theta[e])
-                dx = pos[e + 1, 0] - pos[e, 0]
-                dz = pos[e + 1, 1] - pos[e, 1]
-                a = dx * ce + dz * se
-                b = -dx * se + dz * ce
-                grad_l[3 * e] -= ce
-                grad_l[3 * e + 1] -= se
-                grad_l[3 * e + 3] += ce
-                grad_l[3 * e + 4] += se
-                grad_l[3 * e + 2] += b
-                # Hessian of a_e: d2a/dDelta dtheta = d1, d2a/dtheta2 = -a
-                th = 3 * e + 2
-                for comp in range(2):
-                    d1 = -se if comp == 0 else ce
-                    for node, sg in ((3 * e + comp, -1.0), (3 * e + 3 + comp, 1.0)):
-                        band[node, 4 + th - node] += h2 * tension * sg * d1
-                        band[th, 4 + node - th] += h2 * tension * sg * d1
-                band[th, 4] += h2 * tension * (-a)
-            grad_l[3 * (na - 1) + 2] += par[P_TOFF]
-        # mass, damping, and the right-hand side M v + h F (damping enters implicitly)
-        for i in range(n):
+    _set_root(pos, vel, root)
+    tension, m_root = conservative_forces(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, mass, par,
+                                          force, moment)
+    _root_reaction(force, m_root, mass, par, out)
+    band[:, :] = 0.0
+    # -h^2 K_elastic = +h^2 H
+    elastic_hessian_band(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, band, h2)
+    # tendon: band part T * hess(L), rank-one part k_t grad L grad L^T
+    taut = tension > 0.0 and tension < par[P_TMAX]
+    grad_l[:] = 0.0
+    if tension > 0.0:
+        for e in range(na):
+            ce = np.cos(theta[e])
+            se = np.sin(theta[e])
+            dx = pos[e + 1, 0] - pos[e, 0]
+            dz = pos[e + 1, 1] - pos[e, 1]
+            a = dx * ce + dz * se
+            b = -dx * se + dz * ce
+            grad_l[3 * e] -= ce
+            grad_l[3 * e + 1] -= se
+            grad_l[3 * e + 3] += ce
+            grad_l[3 * e + 4] += se
+            grad_l[3 * e + 2] += b
+            # Hessian of a_e: d2a/dDelta dtheta = d1, d2a/dtheta2 = -a
+            th = 3 * e + 2
             for comp in range(2):
-                d = 3 * i + comp
-                m = mass[i]
-                band[d, 4] += m * (1.0 + h * c)
-                rhs[d] = m * vel[i, comp] + h * (force[i, comp] + c * m * root[2 + comp])
-        for e in range(n_el):
-            d = 3 * e + 2
-            band[d, 4] += inertia[e] * (1.0 + h * c)
-            rhs[d] = inertia[e] * omega[e] + h * (moment[e] + c * inertia[e] * root[5])
-        # contact and friction, linearised
-        total_n = 0.0
-        total_f = 0.0
-        for i in range(1, n):
-            normal[i] = 0.0
-            if ground and pos[i, 1] < 0.0:
-                depth = -pos[i, 1]
-                nrm = k_c * depth - d_c * vel[i, 1]
-                if nrm > 0.0:
-                    dz = 3 * i + 1
-                    dx = 3 * i
-                    # N = -k z - d vz  -> dF/dz = -k, dF/dvz = -d
-                    band[dz, 4] += h2 * k_c + h * d_c
-                    rhs[dz] += h * nrm + h * d_c * vel[i, 1]
-                    # F_x = -mu N sat(vx/v_eps)
-                    vx = vel[i, 0]
-                    r = vx / v_eps
-                    sat = max(-1.0, min(1.0, r))
-                    fx = -mu * nrm * sat
-                    rhs[dx] += h * fx
-                    if abs(r) < 1.0:
-                        band[dx, 4] += h * mu * nrm / v_eps
-                        rhs[dx] += h * mu * nrm / v_eps * vx
-                    # coupling through N: dFx/dz = mu k sat, dFx/dvz = mu d sat
-                    band[dx, 4 + 1] += -h2 * mu * k_c * sat - h * mu * d_c * sat
-                    rhs[dx] += -h * mu * d_c * sat * vel[i, 1]
-                    normal[i] = nrm
-                    total_n += nrm
-                    total_f += fx
-        # the clamp angle moves at root[5] over the step: its spring acts on theta_0
-        rhs[2] += h2 * ei[0] / voronoi[0] * root[5]
-        # prescribed root node: identity rows
-        for d in range(2):
-            for k in range(9):
-                band[d, k] = 0.0
-            band[d, 4] = 1.0
-        rhs[0] = root[2]
-        rhs[1] = root[3]
-        if taut:
-            # the tension also changes as the root angle turns over the step
-            shift = h2 * par[P_TK] * par[P_TOFF] * root[5]
-            for d in range(2, nd):
-                rhs[d] += shift * grad_l[d]
-            u = grad_l * (h2 * par[P_TK])
-            u[0] = 0.0
-            u[1] = 0.0
-            work = band.copy()
-            y = banded_solve(work, rhs)
-            work[:, :] = band
-            z = banded_solve(work, u)
-            vy = 0.0
-            vz_ = 0.0
-            for d in range(nd):
-                vy += grad_l[d] * y[d]
-                vz_ += grad_l[d] * z[d]
-            x = y - z * (vy / (1.0 + vz_))
-        else:
-            x = banded_solve(band, rhs)
-        for i in range(n):
-            vel[i, 0] = x[3 * i]
-            vel[i, 1] = x[3 * i + 1]
-            pos[i, 0] += h * vel[i, 0]
-            pos[i, 1] += h * vel[i, 1]
-        for e in range(n_el):
-            omega[e] = x[3 * e + 2]
-            theta[e] += h * omega[e]
-        out[O_T] = tension
-        out[O_N] = total_n
-        out[O_F] = total_f
-        if not (np.isfinite(pos[n - 1, 0]) and np.isfinite(pos[n - 1, 1]) and abs(pos[n - 1, 0]) < 100.0
-                and abs(pos[n - 1, 1]) < 100.0):
-            out[O_DIV] = 1.0
+                d1 = -se if comp == 0 else ce
+                for node, sg in ((3 * e + comp, -1.0), (3 * e + 3 + comp, 1.0)):
+                    band[node, 4 + th - node] += h2 * tension * sg * d1
+                    band[th, 4 + node - th] += h2 * tension * sg * d1
+            band[th, 4] += h2 * tension * (-a)
+        grad_l[3 * (na - 1) + 2] += par[P_TOFF]
+    # mass, damping, and the right-hand side M v + h F (damping enters implicitly)
+    for i in range(n):
+        for comp in range(2):
+            d = 3 * i + comp
+            m = mass[i]
+            band[d, 4] += m * (1.0 + h * c)
+            rhs[d] = m * vel[i, comp] + h * (force[i, comp] + c * m * root[2 + comp])
+    for e in range(n_el):
+        d = 3 * e + 2
+        band[d, 4] += inertia[e] * (1.0 + h * c)
+        rhs[d] = inertia[e] * omega[e] + h * (moment[e] + c * inertia[e] * root[5])
+    # contact and friction, linearised
+    total_n = 0.0
+    total_f = 0.0
+    for i in range(1, n):
+        normal[i] = 0.0
+        if ground and pos[i, 1] < 0.0:
+            depth = -pos[i, 1]
+            nrm = k_c * depth - d_c * vel[i, 1]
+            if nrm > 0.0:
+                dz = 3 * i + 1
+                dx = 3 * i
+                # N = -k z - d vz  -> dF/dz = -k, dF/dvz = -d
+                band[dz, 4] += h2 * k_c + h * d_c
+                rhs[dz] += h * nrm + h * d_c * vel[i, 1]
+                # F_x = -mu N sat(vx/v_eps)
+                vx = vel[i, 0]
+                r = vx / v_eps
+                sat = max(-1.0, min(1.0, r))
+                fx = -mu * nrm * sat
+                rhs[dx] += h * fx
+                if abs(r) < 1.0:
+                    band[dx, 4] += h * mu * nrm / v_eps
+                    rhs[dx] += h * mu * nrm / v_eps * vx
+                # coupling through N: dFx/dz = mu k sat, dFx/dvz = mu d sat
+                band[dx, 4 + 1] += -h2 * mu * k_c * sat - h * mu * d_c * sat
+                rhs[dx] += -h * mu * d_c * sat * vel[i, 1]
+                normal[i] = nrm
+                total_n += nrm
+                total_f += fx
+    # the clamp angle moves at root[5] over the step: its spring acts on theta_0
+    rhs[2] += h2 * ei[0] / voronoi[0] * root[5]
+    # prescribed root node: identity rows
+    for d in range(2):
+        for k in range(9):
+            band[d, k] = 0.0
+        band[d, 4] = 1.0
+    rhs[0] = root[2]
+    rhs[1] = root[3]
+    if taut:
+        # the tension also changes as the root angle turns over the step
+        shift = h2 * par[P_TK] * par[P_TOFF] * root[5]
+        for d in range(2, nd):
+            rhs[d] += shift * grad_l[d]
+        u = grad_l * (h2 * par[P_TK])
+        u[0] = 0.0
+        u[1] = 0.0
+        work = band.copy()
+        y = banded_solve(work, rhs)
+        work[:, :] = band
+        z = banded_solve(work, u)
+        vy = 0.0
+        vz_ = 0.0
+        for d in range(nd):
+            vy += grad_l[d] * y[d]
+            vz_ += grad_l[d] * z[d]
+        x = y - z * (vy / (1.0 + vz_))
+    else:
+        x = banded_solve(band, rhs)
+    for i in range(n):
+        vel[i, 0] = x[3 * i]
+        vel[i, 1] = x[3 * i + 1]
+        pos[i, 0] += h * vel[i, 0]
+        pos[i, 1] += h * vel[i, 1]
+    for e in range(n_el):
+        omega[e] = x[3 * e + 2]
+        theta[e] += h * omega[e]
+    out[O_T] = tension
+    out[O_N] = total_n
+    out[O_F] = total_f
+    if not (np.isfinite(pos[n - 1, 0]) and np.isfinite(pos[n - 1, 1]) and abs(pos[n - 1, 0]) < 100.0
+            and abs(pos[n - 1, 1]) < 100.0):
+        out[O_DIV] = 1.0
+
+
+@njit(cache=True)
+def step_implicit(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
+                  n_steps, normal, out):
+    """``n_steps`` of :func:`implicit_once` with the root held."""
+    nd = 3 * pos.shape[0] - 1
+    force = np.zeros(pos.shape)
+    moment = np.zeros(theta.shape[0])
+    band = np.zeros((nd, 9))
+    rhs = np.zeros(nd)
+    grad_l = np.zeros(nd)
+    for _ in range(n_steps):
+        implicit_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
+                      normal, out, force, moment, band, rhs, grad_l)
+        if out[O_DIV] > 0.0:
             return
     _set_root(pos, vel, root)
 

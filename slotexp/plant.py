@@ -32,8 +32,16 @@ class Plant(Protocol):
     def markers(self) -> dict[str, np.ndarray]:
         """Named world points to log and validate against (at least ``com``)."""
 
-    def step(self, forces: np.ndarray, period: float, external_force: np.ndarray | None = None) -> None:
-        """Advance ``period`` seconds with ground forces (4, 3) held constant."""
+    def step(self, forces: np.ndarray, period: float, external_force: np.ndarray | None = None,
+             tendon_deg: np.ndarray | None = None) -> None:
+        """Advance ``period`` seconds under the controller's output, held constant.
+
+        The ideal plant applies ``forces`` (4, 3); the soft-leg plant drives its servos
+        to ``tendon_deg`` (4,) and its legs make their own ground forces.
+        """
+
+    def telemetry(self) -> dict[str, dict]:
+        """Plant-specific per-step log messages (topic -> message); may be empty."""
 
     def apply_impulse(self, linear: np.ndarray, angular: np.ndarray) -> None:
         """Instantaneous world-frame push (N s) and angular impulse about the CoM (N m s)."""
@@ -72,7 +80,11 @@ class IdealPlant:
         out.update({f"{name}_foot": feet[i] for i, name in enumerate(self.robot.names)})
         return out
 
-    def step(self, forces: np.ndarray, period: float, external_force: np.ndarray | None = None) -> None:
+    def telemetry(self) -> dict[str, dict]:
+        return {}
+
+    def step(self, forces: np.ndarray, period: float, external_force: np.ndarray | None = None,
+             tendon_deg: np.ndarray | None = None) -> None:
         n = max(1, int(round(period / self.dt)))
         f_ext = np.zeros(3) if external_force is None else np.asarray(external_force, dtype=float)
         self._s = integrate_rk4(self._s, np.ascontiguousarray(forces, dtype=float), self._points, f_ext,

@@ -40,6 +40,10 @@ class RunSummary:
 def make_plant(cfg: SlotConfig, robot: RobotModel, x0: np.ndarray) -> Plant:
     if cfg.plant.name == "ideal":
         return IdealPlant(robot, x0, cfg.sim.gravity, cfg.sim.dt)
+    if cfg.plant.name == "cosserat":
+        from .cosserat import CosseratPlant
+
+        return CosseratPlant(cfg, robot, x0)
     raise ValueError(f"unknown plant {cfg.plant.name!r}")
 
 
@@ -81,7 +85,9 @@ def run_closed_loop(cfg: SlotConfig, scenario: ScenarioConfig, duration: float, 
             position, quaternion = plant.pose()
             log_step(sink, t, x_true, x_meas, x_ref_now, step, controller.infeasible_steps, plant.markers(),
                      position, quaternion, names, q_diag)
-        _advance(plant, step.forces, t, period, impulses, scenario, rng)
+            for topic, message in plant.telemetry().items():
+                sink.write(topic, t, message)
+        _advance(plant, step, t, period, impulses, scenario, rng)
         done = k + 1
         if progress is not None:
             progress(done, n_steps)
@@ -117,9 +123,10 @@ def log_step(sink: Sink, t: float, x_true: np.ndarray, x_meas: np.ndarray, x_ref
     sink.write("/markers", t, dict(markers))
 
 
-def _advance(plant: Plant, forces: np.ndarray, t: float, period: float, impulses: list, scenario: ScenarioConfig,
-             rng: np.random.Generator) -> None:
+def _advance(plant: Plant, step: ControlStep, t: float, period: float, impulses: list,
+             scenario: ScenarioConfig, rng: np.random.Generator) -> None:
     """One MPC period, split exactly at any impulse that falls inside it."""
+    forces, tendon = step.forces, step.tendon_deg
     sigma = scenario.noise.process_force_sigma
     f_ext = rng.normal(0.0, sigma, 3) if sigma > 0 else None
     now = t
@@ -127,8 +134,8 @@ def _advance(plant: Plant, forces: np.ndarray, t: float, period: float, impulses
     while impulses and impulses[0].t < end - 1e-12:
         imp = impulses.pop(0)
         if imp.t > now + 1e-12:
-            plant.step(forces, imp.t - now, f_ext)
+            plant.step(forces, imp.t - now, f_ext, tendon)
             now = imp.t
         plant.apply_impulse(np.asarray(imp.linear), np.asarray(imp.angular))
     if end - now > 1e-12:
-        plant.step(forces, end - now, f_ext)
+        plant.step(forces, end - now, f_ext, tendon)

@@ -1,0 +1,264 @@
+"""The soft-leg plant: a rigid torso and four Cosserat legs, coupled both ways (``plant=cosserat``).
+
+Each leg lives in the vertical plane through its corner along its yaw; its root
+node follows the corner and its clamp angle follows the torso's tilt in that
+plane. The force and moment the leg exerts on its root, rotated into 3D, act back
+on the torso, so torso and legs share one step. Tendons are driven by servos
+(first-order lag towards the commanded angle, tension capped by the stall torque
+over the pulley radius). No fictitious force holds anything up.
+
+Out of plane we assume:
+- each leg is rigid out of its plane (its width, 20 mm, is 1.5-6x its thickness),
+  so the whole leg translates sideways and turns with its root;
+- the foot's sideways friction is regularised Coulomb friction on the leg's actual
+  ground normal force, with the foot's sideways velocity taken from the torso's
+  rigid motion, applied to the torso at the foot;
+- the leg plane turns with the torso's heading; node coordinates in the plane are
+  kept (no Coriolis terms from the plane's slow rotation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .body import euler_to_quat, quat_mul, quat_to_euler, quat_to_rot
+from .config import SlotConfig
+from .errors import UserError
+from .leg import LegModel, build_leg
+from .legsim import (O_DIV, O_F, O_FX, O_FZ, O_M, O_N, O_T, OUT, P_C, P_D, P_G, P_GROUND, P_K, P_MU, P_NA, P_TFREE,
+                     P_TK, P_TMAX, P_TOFF, P_VEPS, PAR, implicit_once, stable_dt, symplectic_once, tendon_length)
+from .robot import RobotModel
+
+
+class DivergenceError(UserError):
+    """The coupled simulation blew up; the message names sim.dt and the stability limit."""
+
+
+@njit(cache=True)
+def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw, rest_theta0,
+                  pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia_el, par,
+                  servo, servo_cmd, servo_tau, pulley, free0, prev_corner, f_ext, mu_lat, v_eps,
+                  implicit, h, n_steps, normal, out, force, moment, band, rhs, grad_l, reaction):
+    """Advance torso (p q v w_body) and four legs ``n_steps`` steps of ``h``.
+
+    ``reaction`` (4, 6) receives each leg's force and moment on the torso (world)
+    at the last step. Returns the number of steps done (< n_steps on divergence).
+    """
+    n_legs = pos.shape[0]
+    for step in range(n_steps):
+        p = torso[0:3]
+        q = torso[3:7]
+        v = torso[7:10]
+        wb = torso[10:13]
+        rot = quat_to_rot(q)
+        ww = rot @ wb
+        f_tot = f_ext.copy()
+        f_tot[2] -= torso_mass * gravity
+        tau = np.zeros(3)
+        for i in range(n_legs):
+            db = np.array([np.cos(yaw[i]), np.sin(yaw[i]), 0.0])
+            dw = rot @ db
+            horiz = np.sqrt(dw[0] ** 2 + dw[1] ** 2)
+            u = np.array([dw[0] / horiz, dw[1] / horiz, 0.0])
+            axis = np.array([u[1], -u[0], 0.0])  # u x e_z: in-plane angle rate = omega . axis
+            lat = np.array([-u[1], u[0], 0.0])
+            rc = rot @ corners[i]
+            cw = p + rc
+            vc = v + np.cross(ww, rc)
+            # keep node world positions while the root moves in the plane
+            ds = (cw[0] - prev_corner[i, 0]) * u[0] + (cw[1] - prev_corner[i, 1]) * u[1]
+            for k in range(pos.shape[1]):
+                pos[i, k, 0] -= ds
+            prev_corner[i, 0] = cw[0]
+            prev_corner[i, 1] = cw[1]
+            prev_corner[i, 2] = cw[2]
+            root = np.array([0.0, cw[2], vc[0] * u[0] + vc[1] * u[1], vc[2],
+                             rest_theta0 + np.arctan2(dw[2], horiz), ww @ axis])
+            # servo: implicit first-order lag towards the command
+            servo[i] = (servo[i] + h / servo_tau * servo_cmd[i]) / (1.0 + h / servo_tau)
+            par[i, P_TFREE] = free0[i] - pulley * servo[i]
+            if implicit:
+                implicit_once(pos[i], vel[i], theta[i], omega[i], l0, voronoi, dtheta0, ea, ga, ei, mass,
+                              inertia_el, par[i], root, h, normal[i], out[i], force, moment, band, rhs, grad_l)
+            else:
+                symplectic_once(pos[i], vel[i], theta[i], omega[i], l0, voronoi, dtheta0, ea, ga, ei, mass,
+                                inertia_el, par[i], root, h, normal[i], out[i], force, moment)
+            if out[i, O_DIV] > 0.0:
+                return step
+            fw = out[i, O_FX] * u
+            fw[2] += out[i, O_FZ]
+            mw = out[i, O_M] * axis
+            f_tot += fw
+            tau += np.cross(rc, fw) + mw
+            reaction[i, 0:3] = fw
+            reaction[i, 3:6] = mw
+            # sideways foot friction, through the leg's out-of-plane rigidity
+            nrm = out[i, O_N]
+            if nrm > 0.0:
+                tip = pos[i, pos.shape[1] - 1]
+                foot = np.array([cw[0] + tip[0] * u[0], cw[1] + tip[0] * u[1], tip[1]])
+                rf = foot - p
+                vl = (v + np.cross(ww, rf)) @ lat
+                fl = -mu_lat * nrm * max(-1.0, min(1.0, vl / v_eps)) * lat
+                f_tot += fl
+                tau += np.cross(rf, fl)
+                reaction[i, 0:3] += fl
+        # torso: semi-implicit Euler, gyroscopic term kept
+        v_new = v + h * f_tot / torso_mass
+        tau_b = rot.T @ tau
+        iw = inertia @ wb
+        wb_new = wb + h * (inertia_inv @ (tau_b - np.cross(wb, iw)))
+        torso[0:3] = p + h * v_new
+        torso[7:10] = v_new
+        torso[10:13] = wb_new
+        half = 0.5 * h * wb_new
+        angle = np.sqrt(half @ half)
+        dq = np.array([np.cos(angle), 0.0, 0.0, 0.0])
+        if angle > 0.0:
+            sa = np.sin(angle) / angle
+            dq[1:4] = half * sa
+        qn = quat_mul(q, dq)
+        torso[3:7] = qn / np.sqrt(qn @ qn)
+    return n_steps
+
+
+class CosseratPlant:
+    """Torso + four soft legs behind the :class:`slotexp.plant.Plant` interface."""
+
+    def __init__(self, cfg: SlotConfig, robot: RobotModel, x0: np.ndarray) -> None:
+        self.cfg = cfg
+        self.robot = robot
+        self.dt = cfg.sim.dt
+        self.time = 0.0
+        self.implicit = cfg.plant.integrator == "implicit"
+        leg_cfg = cfg.robot.leg
+        self.model: LegModel = build_leg(leg_cfg)
+        m = self.model
+        n = m.n_nodes
+        lx, ly, lz = cfg.robot.torso.size
+        self.torso_mass = cfg.robot.torso.mass
+        self.inertia = self.torso_mass / 12.0 * np.diag([ly**2 + lz**2, lx**2 + lz**2, lx**2 + ly**2])
+        self.inertia_inv = np.linalg.inv(self.inertia)
+        self.yaw = np.deg2rad(np.asarray(leg_cfg.yaw_deg, dtype=float))
+        # leg roots on the torso's bottom face, relative to the torso centre
+        self.corners = np.column_stack([np.sign(np.cos(self.yaw)) * lx / 2, np.sign(np.sin(self.yaw)) * ly / 2,
+                                        np.full(4, -lz / 2)])
+        drop = m.rest_pos[0, 1] - m.rest_pos[-1, 1]
+        # torso placed so that the resting feet just touch the ground, plus the scenario's offset
+        z0 = lz / 2 + drop + (x0[5] - robot.stance_height)
+        q0 = euler_to_quat(*x0[0:3])
+        rot = quat_to_rot(q0)
+        self.torso = np.concatenate([[x0[3], x0[4], z0], q0, x0[9:12], rot.T @ x0[6:9]])
+        self.pos = np.repeat(m.rest_pos[None], 4, axis=0).copy()
+        corner_w = self.torso[0:3] + self.corners @ rot.T
+        self.pos[:, :, 1] += (corner_w[:, 2] - m.rest_pos[0, 1])[:, None]
+        self.vel = np.zeros_like(self.pos)
+        self.theta = np.repeat(m.rest_theta[None], 4, axis=0).copy()
+        self.omega = np.zeros_like(self.theta)
+        self.prev_corner = corner_w.copy()
+        c = cfg.robot.contact
+        t = cfg.robot.tendon
+        n_anchor = max(1, int(round(t.routed_fraction * (n - 1))))
+        self.par = np.zeros((4, len(PAR)))
+        self.par[:, P_G] = cfg.sim.gravity
+        self.par[:, P_K] = c.stiffness
+        self.par[:, P_D] = c.damping
+        self.par[:, P_MU] = c.friction
+        self.par[:, P_VEPS] = c.slip_velocity
+        self.par[:, P_GROUND] = 1.0
+        self.par[:, P_C] = leg_cfg.damping_per_s
+        self.par[:, P_TK] = t.stiffness
+        self.par[:, P_TOFF] = t.offset
+        self.par[:, P_TMAX] = cfg.robot.servo.stall_torque / leg_cfg.pulley_radius
+        self.par[:, P_NA] = n_anchor
+        rest_len = tendon_length(m.rest_pos, m.rest_theta, m.rest_theta[0], self.par[0])
+        self.free0 = np.full(4, rest_len + t.slack)
+        self.par[:, P_TFREE] = self.free0
+        self.servo = np.zeros(4)        # servo (tendon) angle, rad
+        self.servo_cmd = np.zeros(4)
+        self.normal = np.zeros((4, n))
+        self.out = np.zeros((4, len(OUT)))
+        self.reaction = np.zeros((4, 6))
+        nd = 3 * n - 1
+        self._work = (np.zeros((n, 2)), np.zeros(n - 1), np.zeros((nd, 9)), np.zeros(nd), np.zeros(nd))
+        self.marker_nodes = sorted({0, (n - 1) // 3, 2 * (n - 1) // 3, n - 1})
+
+    # ------------------------------------------------------------------ Plant interface
+    def state(self) -> np.ndarray:
+        q = self.torso[3:7]
+        rot = quat_to_rot(q)
+        return np.concatenate([quat_to_euler(q), self.torso[0:3], rot @ self.torso[10:13], self.torso[7:10]])
+
+    def pose(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.torso[0:3].copy(), self.torso[3:7].copy()
+
+    def _plane(self) -> tuple[np.ndarray, np.ndarray]:
+        """Corner world positions (4, 3) and in-plane unit directions (4, 3)."""
+        rot = quat_to_rot(self.torso[3:7])
+        corners = self.torso[0:3] + self.corners @ rot.T
+        d = np.column_stack([np.cos(self.yaw), np.sin(self.yaw), np.zeros(4)]) @ rot.T
+        u = d.copy()
+        u[:, 2] = 0.0
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        return corners, u
+
+    def leg_world(self) -> np.ndarray:
+        """Every node of every leg in the world frame (4, N, 3)."""
+        corners, u = self._plane()
+        out = corners[:, None, :] + self.pos[:, :, 0:1] * u[:, None, :]
+        out[:, :, 2] = self.pos[:, :, 1]
+        return out
+
+    def feet(self) -> np.ndarray:
+        return self.leg_world()[:, -1, :]
+
+    def markers(self) -> dict[str, np.ndarray]:
+        legs = self.leg_world()
+        out = {"com": self.torso[0:3].copy()}
+        for i, name in enumerate(self.robot.names):
+            out[f"{name}_foot"] = legs[i, -1]
+            for k in self.marker_nodes:
+                out[f"{name}_n{k}"] = legs[i, k]
+        return out
+
+    def telemetry(self) -> dict[str, dict]:
+        """Extra per-step log messages: leg shapes, tendon tension, servo angle, contact."""
+        legs = self.leg_world()
+        names = self.robot.names
+        return {
+            "/legs/shape": {name: legs[i] for i, name in enumerate(names)},
+            "/legs/tendon": {"tension_n": self.out[:, O_T].copy(), "servo_deg": np.rad2deg(self.servo),
+                             "command_deg": np.rad2deg(self.servo_cmd)},
+            "/legs/contact": {"normal_n": self.out[:, O_N].copy(), "friction_n": self.out[:, O_F].copy()},
+            "/legs/root": {"force_n": self.reaction[:, 0:3].copy(), "moment_nm": self.reaction[:, 3:6].copy()},
+        }
+
+    def step(self, forces: np.ndarray, period: float, external_force: np.ndarray | None = None,
+             tendon_deg: np.ndarray | None = None) -> None:
+        """Advance ``period`` with the servos tracking ``tendon_deg`` (ground forces are the legs' own)."""
+        if tendon_deg is not None:
+            self.servo_cmd[:] = np.deg2rad(tendon_deg)
+        n = max(1, int(round(period / self.dt)))
+        h = period / n
+        m = self.model
+        f_ext = np.zeros(3) if external_force is None else np.asarray(external_force, dtype=float)
+        done = coupled_steps(self.torso, self.torso_mass, self.inertia, self.inertia_inv, self.cfg.sim.gravity,
+                             self.corners, self.yaw, float(m.rest_theta[0]), self.pos, self.vel, self.theta,
+                             self.omega, m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei, m.mass, m.inertia, self.par,
+                             self.servo, self.servo_cmd, self.cfg.robot.servo.time_constant,
+                             self.cfg.robot.leg.pulley_radius, self.free0, self.prev_corner, f_ext,
+                             self.cfg.robot.contact.friction, self.cfg.robot.contact.slip_velocity,
+                             self.implicit, h, n, self.normal, self.out, *self._work, self.reaction)
+        self.time += done * h
+        if done < n or not np.all(np.isfinite(self.torso)):
+            limit = stable_dt(m, self.cfg.robot.contact.stiffness)
+            raise DivergenceError(
+                f"the soft-leg simulation diverged at t = {self.time:.4g} s with sim.dt = {h:.3g} s "
+                f"({self.cfg.plant.integrator}); the explicit stability limit of this leg is about {limit:.3g} s: "
+                f"lower sim.dt or use plant.integrator=implicit")
+
+    def apply_impulse(self, linear: np.ndarray, angular: np.ndarray) -> None:
+        rot = quat_to_rot(self.torso[3:7])
+        self.torso[7:10] += np.asarray(linear, dtype=float) / self.torso_mass
+        self.torso[10:13] += self.inertia_inv @ (rot.T @ np.asarray(angular, dtype=float))

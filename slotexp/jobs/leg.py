@@ -1,0 +1,44 @@
+"""Experiment ``leg``: one clamped leg under ``leg_load``, run to equilibrium."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..config import SlotConfig
+from ..figures.leg import plot_leg
+from ..legstatics import clamped_leg, settle
+from ..record import Recorder
+from .logged import git_commit
+
+
+def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
+    sim = clamped_leg(cfg)
+    result = settle(sim, cfg)
+    load = cfg.leg_load
+    result.update({"tip_force_n": list(load.tip_force), "tip_moment_nm": load.tip_moment,
+                   "tendon_deg": load.tendon_deg, "ground": load.ground, "n_nodes": sim.model.n_nodes})
+    (out_dir / "leg.json").write_text(json.dumps(result, indent=2))
+    (out_dir / "logs").mkdir(parents=True, exist_ok=True)
+    meta = {"config": {"yaml": resolved_yaml}, "run": {"experiment": "leg", "git_commit": git_commit()}}
+    with Recorder(out_dir / "logs" / "leg.mcap", metadata=meta) as rec:
+        rec.write("/leg/equilibrium", sim.time, {"rest": sim.model.rest_pos, "shape": sim.pos, **{
+            k: v for k, v in result.items() if isinstance(v, float)}})
+    report(out_dir)
+
+
+def report(out_dir: Path) -> None:
+    from ..record import read_log
+
+    log = read_log(out_dir / "logs" / "leg.mcap")
+    row = log["/leg/equilibrium"].iloc[-1]
+    n = len([c for c in row.index if c.startswith("shape.") and c.endswith(".0")])
+    shape = row[[f"shape.{i}.{j}" for i in range(n) for j in range(2)]].to_numpy(float).reshape(n, 2)
+    rest = row[[f"rest.{i}.{j}" for i in range(n) for j in range(2)]].to_numpy(float).reshape(n, 2)
+    import yaml
+
+    conf = yaml.safe_load(log.metadata["config"]["yaml"])
+    load = conf["leg_load"]
+    title = (f"tip force {load['tip_force']} N, moment {load['tip_moment']} N m, tendon {load['tendon_deg']} deg: "
+             f"tip ({1e3 * row['tip_x']:.1f}, {1e3 * row['tip_z']:.1f}) mm")
+    plot_leg(rest, shape, out_dir / "fig_leg.png", title, ground=bool(load["ground"]))
