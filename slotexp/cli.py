@@ -19,7 +19,7 @@ from .config import ConfigError, validate
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 GROUPS = ("robot", "gait", "solver", "plant", "experiment", "scenario", "actuation")
-HARDWARE_GROUPS = ("robot", "gait", "solver", "plant", "hardware", "odometry")
+HARDWARE_GROUPS = ("robot", "gait", "solver", "actuation", "plant", "hardware", "odometry")
 HARDWARE_CONFIG = "hardware_config"
 HELP_FLAGS = {"--hydra-help", "--help", "-h", "--shell-completion", "-sc"}
 VALUE_FLAGS = {"--cfg", "-c", "--package", "-p", "--config-path", "-cp", "--config-name", "-cn",
@@ -226,11 +226,13 @@ def hardware(ctx: typer.Context,
                                           "never write Goal Position; log what would be sent.")) -> None:
     """Run the MPC on the robot (four XL430 servos, VIO odometry). Arguments are Hydra overrides.
 
-    Groups: hardware (xl430), odometry (zmq, replay, sim), and robot, gait, solver, plant as
-    for `slot run`. Keys: hardware.port, hardware.baudrate, hardware.ids, odometry.endpoint,
-    duration (s; default: until Ctrl-C). Writes logs/hardware.mcap to
-    experiments/hardware/<timestamp>/ (hydra.run.dir=DIR overrides) and prints that directory
-    last. Try --dry-run first; odometry=sim runs the loop against the simulator (HIL).
+    Groups: hardware (xl430), odometry (zmq, replay, sim), and robot, gait, solver, actuation, plant as for `slot run`.
+
+    Keys: hardware.port, hardware.baudrate, hardware.ids, odometry.endpoint, duration (s; default: until Ctrl-C).
+
+    Writes logs/hardware.mcap to experiments/hardware/<timestamp>/ (or hydra.run.dir=DIR); prints it last.
+
+    Try --dry-run first. odometry=sim runs the same loop against the simulator (hardware-in-the-loop).
     """
     import hydra
 
@@ -346,6 +348,14 @@ def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (
 
             simulate.report(run_dir, list(conf.gait.velocity), float(conf.experiment.drift_distance),
                             list(conf.robot.leg.names))
+        elif experiment == "leg":
+            from .jobs import leg
+
+            leg.report(run_dir)
+        elif experiment == "calibrate":
+            from .jobs import calibrate
+
+            calibrate.report(run_dir, float(conf.experiment.fit_min_force))
         else:
             fail(f"{logs[0]}: log metadata names no known experiment ({experiment!r})")
     except _user_errors() as exc:

@@ -91,6 +91,9 @@ class LegConfig:
     # Rest shape z(x) = c3 x^3 + c2 x^2 + c1 x + c0 in the leg plane (root at x = 0).
     rest_shape_coeffs: list[float] = _vec([6.356, -1.810, 0.0, 0.02175], length=4, unit="m")
     rest_shape: str = _choice("cubic", "cubic", "straight")
+    # cosserat: our rod (stretch, shear, bending coupled); paper: eqs. (2)-(4) + restoring spring
+    model: str = _choice("cosserat", "cosserat", "paper")
+    restoring_stiffness: float = _num(800.0, lo=0.0, unit="N/m")  # paper's k_r, used by model=paper only
     pulley_radius: float = _num(0.01, lo=0.0, lo_open=True, unit="m")
     tendon_max_deg: float = _num(116.28, lo=0.0, lo_open=True, hi=360.0, unit="deg")
     # Viscous damping of each node's (and element's) motion relative to the root, 1/s.
@@ -436,6 +439,13 @@ def validate(cfg: SlotConfig) -> SlotConfig:
     if g.tendon_ramp + g.tendon_hold + g.tendon_decay > 1.0 + 1e-9:
         raise ConfigError(f"gait.tendon_ramp + tendon_hold + tendon_decay = "
                           f"{g.tendon_ramp + g.tendon_hold + g.tendon_decay:g}: they share one phase, keep it <= 1")
+    if leg.model == "paper":
+        if cfg.plant.name == "cosserat" and cfg.plant.integrator != "symplectic":
+            raise ConfigError("robot.leg.model=paper has no Jacobian for the implicit step: add "
+                              "plant.integrator=symplectic sim.dt=2e-5")
+        if cfg.leg_load.integrator != "symplectic" and getattr(cfg.experiment, "name", "") in ("leg", "calibrate"):
+            raise ConfigError("robot.leg.model=paper has no Jacobian for the implicit step: add "
+                              "leg_load.integrator=symplectic leg_load.dt=2e-5")
     if cfg.mpc.f_min_stance > cfg.mpc.f_max:
         raise ConfigError(f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = "
                           f"{cfg.mpc.f_max:g} N: lower it")

@@ -26,8 +26,9 @@ from .body import euler_to_quat, quat_mul, quat_to_euler, quat_to_rot
 from .config import SlotConfig
 from .errors import UserError
 from .leg import LegModel, build_leg
-from .legsim import (O_DIV, O_F, O_FX, O_FZ, O_M, O_N, O_T, OUT, P_C, P_D, P_G, P_GROUND, P_K, P_MU, P_NA, P_TFREE,
-                     P_TK, P_TMAX, P_TOFF, P_VEPS, PAR, implicit_once, stable_dt, symplectic_once, tendon_length)
+from .legsim import (O_DIV, O_F, O_FX, O_FZ, O_M, O_N, O_T, OUT, P_C, P_D, P_G, P_GROUND, P_K, P_KR, P_MU, P_NA,
+                     P_PAPER, P_TFREE, P_TK, P_TMAX, P_TOFF, P_VEPS, PAR, implicit_once, stable_dt, symplectic_once,
+                     tendon_length)
 from .robot import RobotModel
 
 
@@ -37,9 +38,9 @@ class DivergenceError(UserError):
 
 @njit(cache=True)
 def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw, rest_theta0,
-                  pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia_el, par,
+                  pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia_el, par,
                   servo, servo_cmd, servo_tau, pulley, free0, prev_corner, f_ext, mu_lat, v_eps,
-                  implicit, h, n_steps, normal, out, force, moment, band, rhs, grad_l, reaction):
+                  implicit, h, n_steps, normal, out, force, moment, band, rhs, grad_l, cth, sth, work, reaction):
     """Advance torso (p q v w_body) and four legs ``n_steps`` steps of ``h``.
 
     ``reaction`` (4, 6) receives each leg's force and moment on the torso (world)
@@ -79,11 +80,12 @@ def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw
             servo[i] = (servo[i] + h / servo_tau * servo_cmd[i]) / (1.0 + h / servo_tau)
             par[i, P_TFREE] = free0[i] - pulley * servo[i]
             if implicit:
-                implicit_once(pos[i], vel[i], theta[i], omega[i], l0, voronoi, dtheta0, ea, ga, ei, mass,
-                              inertia_el, par[i], root, h, normal[i], out[i], force, moment, band, rhs, grad_l)
+                implicit_once(pos[i], vel[i], theta[i], omega[i], rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass,
+                              inertia_el, par[i], root, h, normal[i], out[i], force, moment, band, rhs, grad_l,
+                              cth, sth, work)
             else:
-                symplectic_once(pos[i], vel[i], theta[i], omega[i], l0, voronoi, dtheta0, ea, ga, ei, mass,
-                                inertia_el, par[i], root, h, normal[i], out[i], force, moment)
+                symplectic_once(pos[i], vel[i], theta[i], omega[i], rest_pos, l0, voronoi, dtheta0, ea, ga, ei,
+                                mass, inertia_el, par[i], root, h, normal[i], out[i], force, moment, cth, sth)
             if out[i, O_DIV] > 0.0:
                 return step
             fw = out[i, O_FX] * u
@@ -137,7 +139,8 @@ class CosseratPlant:
         m = self.model
         n = m.n_nodes
         lx, ly, lz = cfg.robot.torso.size
-        self.torso_mass = cfg.robot.torso.mass
+        # each root node moves with its corner, so its mass rides with the torso
+        self.torso_mass = cfg.robot.torso.mass + 4 * m.mass[0]
         self.inertia = self.torso_mass / 12.0 * np.diag([ly**2 + lz**2, lx**2 + lz**2, lx**2 + ly**2])
         self.inertia_inv = np.linalg.inv(self.inertia)
         self.yaw = np.deg2rad(np.asarray(leg_cfg.yaw_deg, dtype=float))
@@ -172,6 +175,8 @@ class CosseratPlant:
         self.par[:, P_TOFF] = t.offset
         self.par[:, P_TMAX] = cfg.robot.servo.stall_torque / leg_cfg.pulley_radius
         self.par[:, P_NA] = n_anchor
+        self.par[:, P_PAPER] = 1.0 if leg_cfg.model == "paper" else 0.0
+        self.par[:, P_KR] = leg_cfg.restoring_stiffness
         rest_len = tendon_length(m.rest_pos, m.rest_theta, m.rest_theta[0], self.par[0])
         self.free0 = np.full(4, rest_len + t.slack)
         self.par[:, P_TFREE] = self.free0
@@ -181,7 +186,8 @@ class CosseratPlant:
         self.out = np.zeros((4, len(OUT)))
         self.reaction = np.zeros((4, 6))
         nd = 3 * n - 1
-        self._work = (np.zeros((n, 2)), np.zeros(n - 1), np.zeros((nd, 9)), np.zeros(nd), np.zeros(nd))
+        self._work = (np.zeros((n, 2)), np.zeros(n - 1), np.zeros((nd, 9)), np.zeros(nd), np.zeros(nd),
+                      np.zeros(n - 1), np.zeros(n - 1), np.zeros(nd))
         self.marker_nodes = sorted({0, (n - 1) // 3, 2 * (n - 1) // 3, n - 1})
 
     # ------------------------------------------------------------------ Plant interface
@@ -245,7 +251,8 @@ class CosseratPlant:
         f_ext = np.zeros(3) if external_force is None else np.asarray(external_force, dtype=float)
         done = coupled_steps(self.torso, self.torso_mass, self.inertia, self.inertia_inv, self.cfg.sim.gravity,
                              self.corners, self.yaw, float(m.rest_theta[0]), self.pos, self.vel, self.theta,
-                             self.omega, m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei, m.mass, m.inertia, self.par,
+                             self.omega, m.rest_pos, m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei, m.mass, m.inertia,
+                             self.par,
                              self.servo, self.servo_cmd, self.cfg.robot.servo.time_constant,
                              self.cfg.robot.leg.pulley_radius, self.free0, self.prev_corner, f_ext,
                              self.cfg.robot.contact.friction, self.cfg.robot.contact.slip_velocity,

@@ -102,16 +102,33 @@ def model_from_shape(shape: np.ndarray, width: float, h_root: float, h_tip: floa
 
 
 @njit(cache=True)
+def directors(theta, cth, sth):
+    """cos and sin of every element angle, computed once per step and shared."""
+    for e in range(theta.shape[0]):
+        cth[e] = np.cos(theta[e])
+        sth[e] = np.sin(theta[e])
+
+
+@njit(cache=True)
 def elastic_forces(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment) -> float:
     """Add -grad U (stretch, shear, bending) into ``force`` (N, 2) and ``moment`` (E,).
 
     ``theta_root`` is the clamp angle at node 0 (rest: theta[0]); returns the bending
     moment the leg exerts on its root.
     """
+    cth = np.empty(theta.shape[0])
+    sth = np.empty(theta.shape[0])
+    directors(theta, cth, sth)
+    return elastic_forces_cs(pos, theta, cth, sth, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment)
+
+
+@njit(cache=True)
+def elastic_forces_cs(pos, theta, cth, sth, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment) -> float:
+    """:func:`elastic_forces` with the directors given."""
     n_el = theta.shape[0]
     for e in range(n_el):
-        c = np.cos(theta[e])
-        s = np.sin(theta[e])
+        c = cth[e]
+        s = sth[e]
         dx = pos[e + 1, 0] - pos[e, 0]
         dz = pos[e + 1, 1] - pos[e, 1]
         a = dx * c + dz * s
@@ -160,17 +177,21 @@ def elastic_hessian_band(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, e
     """Add ``scale`` * Hessian of U into ``band`` (n, 9): band[i, 4 + j - i] = H[i, j].
 
     (U is quadratic in theta_root, so the Hessian does not depend on it.)
-
     DOF order: node i -> 3i, 3i+1; element e -> 3e+2 (so n = 3N - 1).
     """
+    cth = np.empty(theta.shape[0])
+    sth = np.empty(theta.shape[0])
+    directors(theta, cth, sth)
+    elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, band, scale)
+
+
+@njit(cache=True)
+def elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, band, scale):
+    """:func:`elastic_hessian_band` with the directors given; writes each entry directly."""
     n_el = theta.shape[0]
-    comp = np.array([0, 1, 2, 0, 1])              # x, z, theta, x, z
-    sign = np.array([-1.0, -1.0, 0.0, 1.0, 1.0])  # d Delta / d r
-    hd = np.empty((2, 2))
-    ht = np.empty(2)
     for e in range(n_el):
-        c = np.cos(theta[e])
-        s = np.sin(theta[e])
+        c = cth[e]
+        s = sth[e]
         dx = pos[e + 1, 0] - pos[e, 0]
         dz = pos[e + 1, 1] - pos[e, 1]
         a = dx * c + dz * s
@@ -178,35 +199,41 @@ def elastic_hessian_band(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, e
         ka = ea[e] / l0[e]
         ks = ga[e] / l0[e]
         # local Hessian in (Delta_x, Delta_z, theta)
-        hxx = ka * c * c + ks * s * s
-        hxz = (ka - ks) * c * s
-        hzz = ka * s * s + ks * c * c
+        hxx = scale * (ka * c * c + ks * s * s)
+        hxz = scale * ((ka - ks) * c * s)
+        hzz = scale * (ka * s * s + ks * c * c)
         p = (ka - ks) * b
         q = ka * (a - l0[e]) - ks * a
-        hxt = p * c - q * s
-        hzt = p * s + q * c
-        htt = -a * q + (ka - ks) * b * b
-        # map to (x_e, z_e, th_e, x_e+1, z_e+1) with Delta = r_{e+1} - r_e
-        hd[0, 0] = hxx
-        hd[0, 1] = hxz
-        hd[1, 0] = hxz
-        hd[1, 1] = hzz
-        ht[0] = hxt
-        ht[1] = hzt
-        base = 3 * e
-        for i in range(5):
-            ci = comp[i]
-            for j in range(5):
-                cj = comp[j]
-                if ci < 2 and cj < 2:
-                    hv = sign[i] * sign[j] * hd[ci, cj]
-                elif ci < 2:
-                    hv = sign[i] * ht[ci]
-                elif cj < 2:
-                    hv = sign[j] * ht[cj]
-                else:
-                    hv = htt
-                band[base + i, 4 + j - i] += scale * hv
+        hxt = scale * (p * c - q * s)
+        hzt = scale * (p * s + q * c)
+        htt = scale * (-a * q + (ka - ks) * b * b)
+        # DOFs x_e, z_e, th_e, x_e+1, z_e+1 at 3e .. 3e+4; Delta = r_{e+1} - r_e
+        i = 3 * e
+        band[i, 4] += hxx
+        band[i, 5] += hxz
+        band[i, 6] -= hxt
+        band[i, 7] -= hxx
+        band[i, 8] -= hxz
+        band[i + 1, 3] += hxz
+        band[i + 1, 4] += hzz
+        band[i + 1, 5] -= hzt
+        band[i + 1, 6] -= hxz
+        band[i + 1, 7] -= hzz
+        band[i + 2, 2] -= hxt
+        band[i + 2, 3] -= hzt
+        band[i + 2, 4] += htt
+        band[i + 2, 5] += hxt
+        band[i + 2, 6] += hzt
+        band[i + 3, 1] -= hxx
+        band[i + 3, 2] -= hxz
+        band[i + 3, 3] += hxt
+        band[i + 3, 4] += hxx
+        band[i + 3, 5] += hxz
+        band[i + 4, 0] -= hxz
+        band[i + 4, 1] -= hzz
+        band[i + 4, 2] += hzt
+        band[i + 4, 3] += hxz
+        band[i + 4, 4] += hzz
     band[2, 4] += scale * ei[0] / voronoi[0]
     for v in range(1, n_el):
         k = ei[v] / voronoi[v]
@@ -216,6 +243,34 @@ def elastic_hessian_band(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, e
         band[i1, 4] += scale * k
         band[i0, 4 + i1 - i0] -= scale * k
         band[i1, 4 + i0 - i1] -= scale * k
+
+
+@njit(cache=True)
+def banded_factor(band):
+    """In-place LU of a banded matrix (half-bandwidth 4), no pivoting; multipliers kept below."""
+    n = band.shape[0]
+    for k in range(n):
+        piv = band[k, 4]
+        for i in range(k + 1, min(k + 5, n)):
+            f = band[i, 4 + k - i] / piv
+            band[i, 4 + k - i] = f
+            if f != 0.0:
+                for j in range(k + 1, min(k + 5, n)):
+                    band[i, 4 + j - i] -= f * band[k, 4 + j - k]
+
+
+@njit(cache=True)
+def banded_substitute(band, x):
+    """Solve in place with a matrix factored by :func:`banded_factor`."""
+    n = band.shape[0]
+    for k in range(n):
+        for i in range(k + 1, min(k + 5, n)):
+            x[i] -= band[i, 4 + k - i] * x[k]
+    for k in range(n - 1, -1, -1):
+        acc = x[k]
+        for j in range(k + 1, min(k + 5, n)):
+            acc -= band[k, 4 + j - k] * x[j]
+        x[k] = acc / band[k, 4]
 
 
 @njit(cache=True)
@@ -243,27 +298,34 @@ def banded_solve(band, rhs):
     return x
 
 
-def paper_forces(pos: np.ndarray, theta: np.ndarray, model: LegModel, k_restore: float) -> tuple[np.ndarray, np.ndarray]:
-    """The paper's eqs. (2)-(4) plus its virtual restoring spring, for comparison.
+@njit(cache=True)
+def paper_elastic_forces(pos, theta, cth, sth, theta_root, rest_pos, l0, voronoi, dtheta0, ea, ei, k_restore,
+                         force, moment) -> float:
+    """The paper's leg model, eqs. (2)-(4), plus its virtual restoring spring (for comparison).
 
-    Axial force along the element's own angle (eq. 3), bending from relative
-    angles only (eq. 4): angles do not feel positions, so without the restoring
-    spring (k_r, pulling every node to its rest position) the shape is not held.
+    Axial force E A eps along each element's *own angle* (eq. 3, R_i^T [f_ax, 0]) and
+    bending from relative angles only (eq. 4): angles never feel positions (there is
+    no shear coupling), so the shape is held by a spring k_r pulling every node
+    towards its rest position, translated with the root. Returns the root moment.
     """
     n_el = theta.shape[0]
-    force = np.zeros_like(pos)
-    moment = np.zeros(n_el)
     for e in range(n_el):
-        d = pos[e + 1] - pos[e]
-        length = np.hypot(*d)
-        f_ax = model.ea[e] * (length - model.l0[e]) / model.l0[e]
-        # eq. (3): R_i^T [f_ax, 0] with R_i the rotation by theta_i
-        fx, fz = np.cos(theta[e]) * f_ax, np.sin(theta[e]) * f_ax
-        force[e] += (fx, fz)
-        force[e + 1] -= (fx, fz)
+        dx = pos[e + 1, 0] - pos[e, 0]
+        dz = pos[e + 1, 1] - pos[e, 1]
+        f_ax = ea[e] * (np.sqrt(dx * dx + dz * dz) - l0[e]) / l0[e]
+        force[e, 0] += cth[e] * f_ax
+        force[e, 1] += sth[e] * f_ax
+        force[e + 1, 0] -= cth[e] * f_ax
+        force[e + 1, 1] -= sth[e] * f_ax
     for v in range(1, n_el):
-        m = model.ei[v] / model.voronoi[v] * (theta[v] - theta[v - 1] - model.dtheta0[v])
+        m = ei[v] / voronoi[v] * (theta[v] - theta[v - 1] - dtheta0[v])
         moment[v] -= m
         moment[v - 1] += m
-    force += -k_restore * (pos - model.rest_pos)
-    return force, moment
+    m_root = ei[0] / voronoi[0] * (theta[0] - theta_root)
+    moment[0] -= m_root
+    shift_s = pos[0, 0] - rest_pos[0, 0]
+    shift_z = pos[0, 1] - rest_pos[0, 1]
+    for i in range(1, pos.shape[0]):
+        force[i, 0] -= k_restore * (pos[i, 0] - rest_pos[i, 0] - shift_s)
+        force[i, 1] -= k_restore * (pos[i, 1] - rest_pos[i, 1] - shift_z)
+    return m_root

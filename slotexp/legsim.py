@@ -29,39 +29,50 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .leg import LegModel, banded_solve, elastic_energy, elastic_forces, elastic_hessian_band
+from .leg import (LegModel, banded_factor, banded_substitute, directors, elastic_energy, elastic_forces_cs,
+                  elastic_hessian_band, elastic_hessian_cs, paper_elastic_forces)
 
 PAR = ("gravity", "k_contact", "d_contact", "mu", "v_eps", "ground", "damping", "tendon_k", "tendon_offset",
-       "tendon_max", "tendon_free", "tip_fx", "tip_fz", "tip_m", "n_anchor")
-P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFREE, P_TFX, P_TFZ, P_TM, P_NA = range(15)
+       "tendon_max", "tendon_free", "tip_fx", "tip_fz", "tip_m", "n_anchor", "paper_model", "k_restore")
+(P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFREE, P_TFX, P_TFZ, P_TM, P_NA, P_PAPER,
+ P_KR) = range(17)
 OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged")
 O_FX, O_FZ, O_M, O_T, O_N, O_F, O_DIV = range(7)
 
 
 @njit(cache=True)
-def tendon_length(pos, theta, theta_root, par) -> float:
+def tendon_length_cs(pos, theta, cth, sth, theta_root, par) -> float:
     na = int(par[P_NA])
     length = 0.0
     for e in range(na):
-        length += (pos[e + 1, 0] - pos[e, 0]) * np.cos(theta[e]) + (pos[e + 1, 1] - pos[e, 1]) * np.sin(theta[e])
+        length += (pos[e + 1, 0] - pos[e, 0]) * cth[e] + (pos[e + 1, 1] - pos[e, 1]) * sth[e]
     return length + par[P_TOFF] * (theta[na - 1] - theta_root)
 
 
 @njit(cache=True)
-def tendon_tension(pos, theta, theta_root, par) -> float:
-    stretch = tendon_length(pos, theta, theta_root, par) - par[P_TFREE]
+def tendon_length(pos, theta, theta_root, par) -> float:
+    """Length of the routed cable (see the module docstring)."""
+    cth = np.empty(theta.shape[0])
+    sth = np.empty(theta.shape[0])
+    directors(theta, cth, sth)
+    return tendon_length_cs(pos, theta, cth, sth, theta_root, par)
+
+
+@njit(cache=True)
+def _tension(length, par) -> float:
+    stretch = length - par[P_TFREE]
     if stretch <= 0.0:
         return 0.0
     return min(par[P_TK] * stretch, par[P_TMAX])
 
 
 @njit(cache=True)
-def _add_tendon(pos, theta, tension, par, force, moment):
+def _add_tendon(pos, cth, sth, tension, par, force, moment):
     """-T grad L into force/moment."""
     na = int(par[P_NA])
     for e in range(na):
-        c = np.cos(theta[e])
-        s = np.sin(theta[e])
+        c = cth[e]
+        s = sth[e]
         force[e, 0] += tension * c
         force[e, 1] += tension * s
         force[e + 1, 0] -= tension * c
@@ -72,17 +83,24 @@ def _add_tendon(pos, theta, tension, par, force, moment):
 
 
 @njit(cache=True)
-def conservative_forces(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, ei, mass, par, force, moment):
+def conservative_forces(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, ei, mass, par, force, moment,
+                        cth, sth, rest_pos):
     """Elastic + tendon + gravity + tip load (no contact, no damping).
 
-    Returns (tension, moment on the root).
+    Fills the directors ``cth``/``sth`` for the step. Returns (tension, moment on the root).
     """
     force[:] = 0.0
     moment[:] = 0.0
-    m_root = elastic_forces(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment)
-    tension = tendon_tension(pos, theta, theta_root, par)
+    directors(theta, cth, sth)
+    if par[P_PAPER] > 0.5:
+        m_root = paper_elastic_forces(pos, theta, cth, sth, theta_root, rest_pos, l0, voronoi, dtheta0, ea, ei,
+                                      par[P_KR], force, moment)
+    else:
+        m_root = elastic_forces_cs(pos, theta, cth, sth, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force,
+                                   moment)
+    tension = _tension(tendon_length_cs(pos, theta, cth, sth, theta_root, par), par)
     if tension > 0.0:
-        _add_tendon(pos, theta, tension, par, force, moment)
+        _add_tendon(pos, cth, sth, tension, par, force, moment)
         m_root += tension * par[P_TOFF]  # the cable leaves the root at the offset
     n = pos.shape[0]
     for i in range(n):
@@ -102,6 +120,25 @@ def _set_root(pos, vel, root):
 
 
 @njit(cache=True)
+def _damping_reaction(vel, omega, mass, inertia, par, root, out):
+    """The relative-velocity damping acts between leg and torso: its reaction goes to the root."""
+    c = par[P_C]
+    if c == 0.0:
+        return
+    fx = 0.0
+    fz = 0.0
+    for i in range(1, vel.shape[0]):
+        fx += mass[i] * (vel[i, 0] - root[2])
+        fz += mass[i] * (vel[i, 1] - root[3])
+    m = 0.0
+    for e in range(omega.shape[0]):
+        m += inertia[e] * (omega[e] - root[5])
+    out[O_FX] += c * fx
+    out[O_FZ] += c * fz
+    out[O_M] += c * m
+
+
+@njit(cache=True)
 def _root_reaction(force, m_root, mass, par, out):
     # node 0 belongs to the torso: its own weight is not a leg load
     out[O_FX] = force[0, 0]
@@ -110,8 +147,8 @@ def _root_reaction(force, m_root, mass, par, out):
 
 
 @njit(cache=True)
-def symplectic_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
-                    normal, out, force, moment):
+def symplectic_once(pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root,
+                    h, normal, out, force, moment, cth, sth):
     """One symplectic (semi-implicit) Euler step with implicit damping, contact and friction.
 
     ``root`` = [s, z, vs, vz, theta, omega] of the root over the step.
@@ -127,7 +164,7 @@ def symplectic_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, ma
     ground = par[P_GROUND] > 0.5
     _set_root(pos, vel, root)
     tension, m_root = conservative_forces(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, mass, par,
-                                          force, moment)
+                                          force, moment, cth, sth, rest_pos)
     _root_reaction(force, m_root, mass, par, out)
     total_n = 0.0
     total_f = 0.0
@@ -157,6 +194,7 @@ def symplectic_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, ma
         vel[i, 1] = vz
     for e in range(n_el):
         omega[e] = (omega[e] + h * (moment[e] / inertia[e] + c * root[5])) / (1.0 + h * c)
+    _damping_reaction(vel, omega, mass, inertia, par, root, out)
     for i in range(1, n):
         pos[i, 0] += h * vel[i, 0]
         pos[i, 1] += h * vel[i, 1]
@@ -171,22 +209,24 @@ def symplectic_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, ma
 
 
 @njit(cache=True)
-def step_symplectic(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
-                    n_steps, normal, out):
+def step_symplectic(pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root,
+                    h, n_steps, normal, out):
     """``n_steps`` of :func:`symplectic_once` with the root held."""
     force = np.zeros(pos.shape)
     moment = np.zeros(theta.shape[0])
+    cth = np.zeros(theta.shape[0])
+    sth = np.zeros(theta.shape[0])
     for _ in range(n_steps):
-        symplectic_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
-                        normal, out, force, moment)
+        symplectic_once(pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par,
+                        root, h, normal, out, force, moment, cth, sth)
         if out[O_DIV] > 0.0:
             return
     _set_root(pos, vel, root)
 
 
 @njit(cache=True)
-def implicit_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
-                  normal, out, force, moment, band, rhs, grad_l):
+def implicit_once(pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root,
+                  h, normal, out, force, moment, band, rhs, grad_l, cth, sth, work):
     """One linearly implicit Euler step: (M - h^2 K - h C) v' = M v + h F - h C v.
 
     K and C are the exact Jacobians of every load (elasticity, tendon, contact,
@@ -207,18 +247,18 @@ def implicit_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass
     h2 = h * h
     _set_root(pos, vel, root)
     tension, m_root = conservative_forces(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, mass, par,
-                                          force, moment)
+                                          force, moment, cth, sth, rest_pos)
     _root_reaction(force, m_root, mass, par, out)
     band[:, :] = 0.0
     # -h^2 K_elastic = +h^2 H
-    elastic_hessian_band(pos, theta, root[4], l0, voronoi, dtheta0, ea, ga, ei, band, h2)
+    elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, band, h2)
     # tendon: band part T * hess(L), rank-one part k_t grad L grad L^T
     taut = tension > 0.0 and tension < par[P_TMAX]
     grad_l[:] = 0.0
     if tension > 0.0:
         for e in range(na):
-            ce = np.cos(theta[e])
-            se = np.sin(theta[e])
+            ce = cth[e]
+            se = sth[e]
             dx = pos[e + 1, 0] - pos[e, 0]
             dz = pos[e + 1, 1] - pos[e, 1]
             a = dx * ce + dz * se
@@ -237,6 +277,10 @@ def implicit_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass
                     band[th, 4 + node - th] += h2 * tension * sg * d1
             band[th, 4] += h2 * tension * (-a)
         grad_l[3 * (na - 1) + 2] += par[P_TOFF]
+    # the root node's rows of h^2 (elastic + tendon) Hessian: the reaction must use the
+    # same linearised force the leg feels over the step
+    row0 = band[0].copy()
+    row1 = band[1].copy()
     # mass, damping, and the right-hand side M v + h F (damping enters implicitly)
     for i in range(n):
         for comp in range(2):
@@ -291,21 +335,27 @@ def implicit_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass
         shift = h2 * par[P_TK] * par[P_TOFF] * root[5]
         for d in range(2, nd):
             rhs[d] += shift * grad_l[d]
-        u = grad_l * (h2 * par[P_TK])
-        u[0] = 0.0
-        u[1] = 0.0
-        work = band.copy()
-        y = banded_solve(work, rhs)
-        work[:, :] = band
-        z = banded_solve(work, u)
-        vy = 0.0
-        vz_ = 0.0
+        # Sherman-Morrison: (A + u g^T) x = rhs with u = h^2 k_t g on the free rows
+        banded_factor(band)
+        banded_substitute(band, rhs)
+        coef = h2 * par[P_TK]
+        work[0] = 0.0
+        work[1] = 0.0
+        for d in range(2, nd):
+            work[d] = coef * grad_l[d]
+        banded_substitute(band, work)
+        gy = 0.0
+        gz = 0.0
         for d in range(nd):
-            vy += grad_l[d] * y[d]
-            vz_ += grad_l[d] * z[d]
-        x = y - z * (vy / (1.0 + vz_))
+            gy += grad_l[d] * rhs[d]
+            gz += grad_l[d] * work[d]
+        ratio = gy / (1.0 + gz)
+        for d in range(nd):
+            rhs[d] -= ratio * work[d]
     else:
-        x = banded_solve(band, rhs)
+        banded_factor(band)
+        banded_substitute(band, rhs)
+    x = rhs
     for i in range(n):
         vel[i, 0] = x[3 * i]
         vel[i, 1] = x[3 * i + 1]
@@ -314,6 +364,28 @@ def implicit_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass
     for e in range(n_el):
         omega[e] = x[3 * e + 2]
         theta[e] += h * omega[e]
+    # reaction on the root, consistent with the implicit step (momentum is exchanged exactly)
+    d0 = 0.0
+    d1 = 0.0
+    for k in range(4, 9):
+        d0 += row0[k] * x[k - 4]
+    for k in range(3, 9):
+        d1 += row1[k] * x[k - 3]
+    out[O_FX] -= d0 / h
+    out[O_FZ] -= d1 / h
+    tension_end = tension
+    if taut:
+        gx = 0.0
+        for d in range(nd):
+            gx += grad_l[d] * x[d]
+        out[O_FX] -= h * par[P_TK] * grad_l[0] * gx
+        out[O_FZ] -= h * par[P_TK] * grad_l[1] * gx
+        tension_end = tension + par[P_TK] * h * (gx - par[P_TOFF] * root[5])
+    k0 = ei[0] / voronoi[0]
+    out[O_M] = k0 * (theta[0] - root[4] - h * root[5])
+    if tension > 0.0:
+        out[O_M] += tension_end * par[P_TOFF]
+    _damping_reaction(vel, omega, mass, inertia, par, root, out)
     out[O_T] = tension
     out[O_N] = total_n
     out[O_F] = total_f
@@ -323,8 +395,8 @@ def implicit_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass
 
 
 @njit(cache=True)
-def step_implicit(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
-                  n_steps, normal, out):
+def step_implicit(pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root,
+                  h, n_steps, normal, out):
     """``n_steps`` of :func:`implicit_once` with the root held."""
     nd = 3 * pos.shape[0] - 1
     force = np.zeros(pos.shape)
@@ -332,9 +404,12 @@ def step_implicit(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass
     band = np.zeros((nd, 9))
     rhs = np.zeros(nd)
     grad_l = np.zeros(nd)
+    cth = np.zeros(theta.shape[0])
+    sth = np.zeros(theta.shape[0])
+    work = np.zeros(nd)
     for _ in range(n_steps):
-        implicit_once(pos, vel, theta, omega, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par, root, h,
-                      normal, out, force, moment, band, rhs, grad_l)
+        implicit_once(pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia, par,
+                      root, h, normal, out, force, moment, band, rhs, grad_l, cth, sth, work)
         if out[O_DIV] > 0.0:
             return
     _set_root(pos, vel, root)
@@ -389,8 +464,10 @@ class LegSim:
     def step(self, h: float, n_steps: int = 1, integrator: str = "symplectic") -> None:
         kernel = step_implicit if integrator == "implicit" else step_symplectic
         m = self.model
-        kernel(self.pos, self.vel, self.theta, self.omega, m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei, m.mass,
-               m.inertia, self.par, self.root, h, n_steps, self.normal, self.out)
+        if integrator == "implicit" and self.par[P_PAPER] > 0.5:
+            raise ValueError("the paper's leg model has no Jacobian: use the symplectic integrator with it")
+        kernel(self.pos, self.vel, self.theta, self.omega, m.rest_pos, m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei,
+               m.mass, m.inertia, self.par, self.root, h, n_steps, self.normal, self.out)
         self.time += h * n_steps
         if self.out[O_DIV] > 0.0:
             limit = stable_dt(m, self.par[P_K] if self.par[P_GROUND] > 0.5 else 0.0)

@@ -20,7 +20,8 @@ def clamped_leg(cfg: SlotConfig, root_height: float | None = None) -> LegSim:
                    damping=leg.damping_per_s, tendon_k=tendon.stiffness, tendon_offset=tendon.offset,
                    tendon_max=cfg.robot.servo.stall_torque / leg.pulley_radius,
                    tip_fx=load.tip_force[0], tip_fz=load.tip_force[1], tip_m=load.tip_moment,
-                   n_anchor=max(1, int(round(tendon.routed_fraction * (n - 1)))))
+                   n_anchor=max(1, int(round(tendon.routed_fraction * (n - 1)))),
+                   paper_model=1.0 if leg.model == "paper" else 0.0, k_restore=leg.restoring_stiffness)
     sim = LegSim(model, par)
     height = load.root_height if root_height is None else root_height
     if height is not None:

@@ -72,4 +72,7 @@ def report(out_dir: Path, velocity: list[float], drift_distance: float, legs: li
     (out_dir / "metrics.json").write_text(json.dumps(result, indent=2))
     plot_com(run, out_dir / "fig4_com.png")
     plot_path(run, legs, out_dir / "fig6_path.png")
+    from ..figures.animation import animate_log
+
+    animate_log(run.path, out_dir / f"{run.run.get('gait', 'run')}.gif")  # soft-leg runs only
     return result
