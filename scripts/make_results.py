@@ -16,7 +16,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SLOT = str(Path(sys.executable).parent / "slot")
-KEEP = ("*.csv", "*.md", "*.png", "metrics.json")
+KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml")
 
 RUNS = {
     # Paper Table I, Figs. 7-8 on the ideal plant with the default solver.
@@ -31,6 +31,24 @@ RUNS = {
     "simulate_walk": ["experiment=simulate", "gait=walk"],
     "simulate_crawl": ["experiment=simulate", "gait=crawl"],
     "simulate_omni60": ["experiment=simulate", "gait=omni60"],
+    # --- soft legs ---
+    # The force-to-tendon map of our leg (paper eq. 11); also installed as conf/actuation/calibrated.yaml.
+    "calibrate": ["experiment=calibrate"],
+    # ... and with the authors' code's E = 1e6 Pa.
+    "calibrate_E1e6": ["experiment=calibrate", "robot.leg.youngs_modulus=1e6"],
+    # Static checks: a uniform straight leg under a small tip load (Euler-Bernoulli), ours and the paper's model.
+    "leg_beam": ["experiment=leg", "robot.leg.rest_shape=straight", "robot.leg.thickness_tip=0.0135", "sim.gravity=0",
+                 "leg_load.ground=false", "leg_load.tip_force=[0,-0.01]"],
+    "leg_tip_1N": ["experiment=leg", "sim.gravity=0", "leg_load.ground=false", "leg_load.tip_force=[0,-1]"],
+    "leg_tip_1N_paper_model": ["experiment=leg", "robot.leg.model=paper", "leg_load.integrator=symplectic",
+                               "leg_load.dt=2e-5", "sim.gravity=0", "leg_load.ground=false",
+                               "leg_load.tip_force=[0,-1]"],
+    # Closed loop on the soft plant.
+    "perturb_cosserat": ["experiment=perturb", "plant=cosserat"],
+    "perturb_cosserat_standstill": ["experiment=perturb", "plant=cosserat", "gait.velocity=[0,0]"],
+    "simulate_cosserat_walk": ["experiment=simulate", "plant=cosserat", "gait=walk"],
+    "simulate_cosserat_crawl": ["experiment=simulate", "plant=cosserat", "gait=crawl"],
+    "simulate_cosserat_omni60": ["experiment=simulate", "plant=cosserat", "gait=omni60"],
 }
 
 
@@ -50,6 +68,8 @@ def main(names: list[str]) -> None:
         for pattern in KEEP:
             for f in run_dir.glob(pattern):
                 shutil.copy2(f, dest / f.name)
+        if name == "calibrate":  # the controller's calibrated map is this run's output
+            shutil.copy2(run_dir / "actuation_calibrated.yaml", ROOT / "conf" / "actuation" / "calibrated.yaml")
     timing_path.write_text(json.dumps(timing, indent=2) + "\n")
 
 

@@ -168,9 +168,10 @@ def _hydra_task(cfg) -> None:
 def run(ctx: typer.Context) -> None:
     """Run an experiment. Arguments are Hydra overrides, e.g. experiment=perturb gait=walk solver=scs.
 
-    Groups: experiment (perturb, simulate, validate), gait (walk, crawl, omni60),
-    solver (clarabel, osqp, scs), plant (ideal), robot (slot), and the scenarios
-    under scenarios.<name> (baseline, roll, pitch, height, velocity, combined, noise).
+    Groups: experiment (perturb, simulate, validate, leg, calibrate), gait (walk,
+    crawl, omni60), solver, plant (ideal, cosserat), actuation (paper, calibrated),
+    robot (slot), and the scenarios under scenarios.<name> (baseline, roll, pitch,
+    height, velocity, combined, noise).
     Use -m for a multirun sweep (a,b,c values), --cfg job to print the composed
     config, hydra.run.dir=DIR to choose the output directory.
     """

@@ -41,12 +41,15 @@ def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw
                   pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia_el, par,
                   servo, servo_cmd, servo_tau, pulley, free0, prev_corner, f_ext, mu_lat, v_eps,
                   implicit, h, n_steps, normal, out, force, moment, band, rhs, grad_l, cth, sth, work, reaction):
+    # cth/sth are (4, E): each leg's directors, kept current by the symplectic step
     """Advance torso (p q v w_body) and four legs ``n_steps`` steps of ``h``.
 
     ``reaction`` (4, 6) receives each leg's force and moment on the torso (world)
     at the last step. Returns the number of steps done (< n_steps on divergence).
     """
     n_legs = pos.shape[0]
+    inv_mass = 1.0 / mass
+    inv_inertia = 1.0 / inertia_el
     for step in range(n_steps):
         p = torso[0:3]
         q = torso[3:7]
@@ -82,10 +85,11 @@ def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw
             if implicit:
                 implicit_once(pos[i], vel[i], theta[i], omega[i], rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass,
                               inertia_el, par[i], root, h, normal[i], out[i], force, moment, band, rhs, grad_l,
-                              cth, sth, work)
+                              cth[i], sth[i], work)
             else:
                 symplectic_once(pos[i], vel[i], theta[i], omega[i], rest_pos, l0, voronoi, dtheta0, ea, ga, ei,
-                                mass, inertia_el, par[i], root, h, normal[i], out[i], force, moment, cth, sth)
+                                mass, inertia_el, inv_mass, inv_inertia, par[i], root, h, normal[i], out[i], force,
+                                moment, cth[i], sth[i])
             if out[i, O_DIV] > 0.0:
                 return step
             fw = out[i, O_FX] * u
@@ -187,7 +191,7 @@ class CosseratPlant:
         self.reaction = np.zeros((4, 6))
         nd = 3 * n - 1
         self._work = (np.zeros((n, 2)), np.zeros(n - 1), np.zeros((nd, 9)), np.zeros(nd), np.zeros(nd),
-                      np.zeros(n - 1), np.zeros(n - 1), np.zeros(nd))
+                      np.cos(self.theta), np.sin(self.theta), np.zeros(nd))
         self.marker_nodes = sorted({0, (n - 1) // 3, 2 * (n - 1) // 3, n - 1})
 
     # ------------------------------------------------------------------ Plant interface

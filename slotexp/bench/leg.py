@@ -1,0 +1,180 @@
+"""`slot bench leg`: the leg kernels, PyElastica on the same leg, and the closed-loop walk.
+
+Rows (one process, one core; JIT compile time measured apart, in ``extra``):
+
+- ``symplectic`` and ``implicit``: microseconds per leg per step for a loaded leg in
+  stance (gravity, tendon at 80 deg, ground contact, friction), N from the config,
+  symplectic at 0.8 x its stable step, implicit at 1e-4 s. ``extra`` holds the cost
+  per simulated second and the tip error against a symplectic reference at a 10x
+  smaller step, over the same 0.2 s transient.
+- ``pyelastica`` (if installed): a straight PyElastica rod with as many elements,
+  equal cross-section area, same E and density, clamped, under gravity, stepped by
+  its PositionVerlet at the symplectic step.
+- ``closed_loop``: a 25 s walk on ``plant=cosserat`` (4 legs, torso, MPC, no log);
+  median/p99 wall time per 33 ms MPC step, ``ratio_vs_baseline`` = real-time factor.
+
+``ratio_vs_baseline`` for leg rows = PyElastica's time per step / this row's
+(>1 is faster than PyElastica); without PyElastica the baseline is ``symplectic``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..config import SlotConfig
+from ..legsim import P_TFREE, LegSim, stable_dt
+from ..legstatics import clamped_leg, set_tendon
+from . import BenchRow, register
+
+TRANSIENT_S = 0.2
+
+
+def _loaded_leg(cfg: SlotConfig) -> LegSim:
+    sim = clamped_leg(cfg, root_height=cfg.gait.height - cfg.robot.torso.size[2] / 2)
+    set_tendon(sim, 80.0, cfg.robot.leg.pulley_radius)
+    return sim
+
+
+def _time_steps(sim: LegSim, h: float, integrator: str, blocks: int, per_block: int) -> tuple[np.ndarray, float]:
+    """Per-step times (s) of ``blocks`` blocks, and the first call's time (compile or cache load)."""
+    start = time.perf_counter()
+    sim.step(h, 1, integrator)
+    first = time.perf_counter() - start
+    out = np.empty(blocks)
+    for b in range(blocks):
+        start = time.perf_counter()
+        sim.step(h, per_block, integrator)
+        out[b] = (time.perf_counter() - start) / per_block
+    return out, first
+
+
+def _tip_after_transient(cfg: SlotConfig, h: float, integrator: str) -> np.ndarray:
+    sim = _loaded_leg(cfg)
+    free = sim.par[P_TFREE]
+    sim.par[P_TFREE] = free + cfg.robot.leg.pulley_radius * np.deg2rad(30.0)  # start 30 deg slacker
+    sim.step(h, int(round(0.05 / h)), integrator)
+    sim.par[P_TFREE] = free  # then a step in the command, and watch the transient
+    sim.step(h, int(round(TRANSIENT_S / h)), integrator)
+    return sim.tip
+
+
+def _pyelastica_step_us(cfg: SlotConfig, h: float, blocks: int, per_block: int) -> np.ndarray | None:
+    try:
+        import elastica as ea
+    except ImportError:
+        return None
+    leg = cfg.robot.leg
+    area = leg.width * 0.5 * (leg.thickness_root + leg.thickness_tip)
+
+    class Sim(ea.BaseSystemCollection, ea.Constraints, ea.Forcing):
+        pass
+
+    system = Sim()
+    rod = ea.CosseratRod.straight_rod(leg.n_nodes - 1, np.zeros(3), np.array([1.0, 0.0, 0.0]),
+                                      np.array([0.0, 0.0, 1.0]), leg.length, float(np.sqrt(area / np.pi)),
+                                      leg.density, youngs_modulus=leg.youngs_modulus,
+                                      shear_modulus=leg.youngs_modulus / (2 * 1.45))
+    system.append(rod)
+    system.constrain(rod).using(ea.OneEndFixedBC, constrained_position_idx=(0,), constrained_director_idx=(0,))
+    system.add_forcing_to(rod).using(ea.GravityForces, acc_gravity=np.array([0.0, 0.0, -cfg.sim.gravity]))
+    system.finalize()
+    stepper = ea.PositionVerlet()
+    t = np.float64(0.0)
+    dt = np.float64(h)
+    for _ in range(10):
+        t = stepper.step(system, t, dt)
+    out = np.empty(blocks)
+    for b in range(blocks):
+        start = time.perf_counter()
+        for _ in range(per_block):
+            t = stepper.step(system, t, dt)
+        out[b] = (time.perf_counter() - start) / per_block
+    if not np.all(np.isfinite(rod.position_collection)):
+        return None
+    return out
+
+
+class _StatsSink:
+    """Keeps only the MPC's wall time per step (no files)."""
+
+    def __init__(self) -> None:
+        self.mpc_s: list[float] = []
+
+    def write(self, topic, t, message) -> None:
+        if topic == "/mpc/stats":
+            self.mpc_s.append(float(message["wall_time_s"]))
+
+    def write_pose(self, *args) -> None:
+        pass
+
+
+@register("leg")
+def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
+    from ..simulation import run_closed_loop
+
+    sim = _loaded_leg(cfg)
+    h_sym = 0.8 * stable_dt(sim.model, cfg.robot.contact.stiffness)
+    h_imp = 1e-4
+    timings = {}
+    for name, h, per_block in (("symplectic", h_sym, 2000), ("implicit", h_imp, 500)):
+        leg = _loaded_leg(cfg)
+        leg.step(h, int(round(0.5 / h)), name)  # settle into stance first
+        timings[name] = (h,) + _time_steps(leg, h, name, 60, per_block)
+    h_ref = h_sym / 10
+    tip_ref = _tip_after_transient(cfg, h_ref, "symplectic")
+    rows: list[BenchRow] = []
+    py = _pyelastica_step_us(cfg, h_sym, 20, 200)
+    base = float(np.median(py)) if py is not None else float(np.median(timings["symplectic"][1]))
+    for name, (h, per_step, first) in timings.items():
+        med = float(np.median(per_step))
+        tip_err = float(np.linalg.norm(_tip_after_transient(cfg, h, name) - tip_ref))
+        rows.append(BenchRow("leg", f"{name} dt={h:.3g}", med * 1e6, float(np.quantile(per_step, 0.99)) * 1e6,
+                             base / med, {"dt_s": h, "us_per_simulated_second": med / h * 1e6,
+                                          "first_call_s": first, "tip_error_m": tip_err,
+                                          "reference": f"symplectic dt={h_ref:.3g}", "n_nodes": sim.model.n_nodes}))
+    sym_cost = rows[0].extra["us_per_simulated_second"]
+    rows[1].extra["speedup_per_simulated_second_vs_symplectic"] = sym_cost / rows[1].extra["us_per_simulated_second"]
+    if py is not None:
+        rows.append(BenchRow("leg", f"pyelastica dt={h_sym:.3g}", float(np.median(py)) * 1e6,
+                             float(np.quantile(py, 0.99)) * 1e6, 1.0,
+                             {"note": "straight rod, equal area, PositionVerlet, gravity, clamped"}))
+
+    # closed loop: 25 s walk on the soft plant, no logging
+    loop_cfg = cfg
+    if cfg.plant.name != "cosserat":
+        loop_cfg = _with_cosserat(cfg)
+    stamps: list[float] = []
+    sink = _StatsSink()
+    start = time.perf_counter()
+    summary = run_closed_loop(loop_cfg, loop_cfg.scenarios["baseline"], 25.0, sink,
+                              lambda done, total: stamps.append(time.perf_counter()))
+    wall = time.perf_counter() - start
+    per_step = np.diff(np.concatenate([[start], stamps]))
+    mpc = np.asarray(sink.mpc_s)
+    rows.append(BenchRow("closed_loop", f"walk 25 s cosserat + {loop_cfg.solver.name}", float(np.median(per_step)) * 1e6,
+                         float(np.quantile(per_step, 0.99)) * 1e6, summary.sim_time_s / wall,
+                         {"wall_s": wall, "real_time_factor": summary.sim_time_s / wall,
+                          "mpc_share": float(mpc.sum() / wall), "mpc_median_us": float(np.median(mpc)) * 1e6,
+                          "plant_dt_s": loop_cfg.sim.dt, "integrator": loop_cfg.plant.integrator}))
+    return rows
+
+
+def _with_cosserat(cfg: SlotConfig) -> SlotConfig:
+    """The same config on the soft plant (as ``plant=cosserat`` would compose it)."""
+    import copy
+
+    from ..config import ActuationConfig
+
+    out = copy.deepcopy(cfg)
+    out.plant.name = "cosserat"
+    out.sim.dt = 1e-4
+    calibrated = Path(__file__).resolve().parents[2] / "conf" / "actuation" / "calibrated.yaml"
+    if calibrated.is_file():
+        import yaml
+
+        values = yaml.safe_load(calibrated.read_text())
+        out.robot.actuation = ActuationConfig(**values)
+    return out
