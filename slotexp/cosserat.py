@@ -32,6 +32,9 @@ from .legsim import (O_DIV, O_F, O_FX, O_FZ, O_M, O_N, O_T, OUT, P_C, P_D, P_G, 
 from .robot import RobotModel
 
 
+SETTLE_S = 0.3  # s the legs get to settle under the held torso before a run starts
+
+
 class DivergenceError(UserError):
     """The coupled simulation blew up; the message names sim.dt and the stability limit."""
 
@@ -40,12 +43,14 @@ class DivergenceError(UserError):
 def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw, rest_theta0,
                   pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia_el, par,
                   servo, servo_cmd, servo_tau, pulley, free0, prev_corner, f_ext, mu_lat, v_eps,
-                  implicit, h, n_steps, normal, out, force, moment, band, rhs, grad_l, cth, sth, work, reaction):
+                  implicit, h, n_steps, normal, out, force, moment, band, rhs, grad_l, cth, sth, work, reaction,
+                  hold_torso):
     # cth/sth are (4, E): each leg's directors, kept current by the symplectic step
     """Advance torso (p q v w_body) and four legs ``n_steps`` steps of ``h``.
 
     ``reaction`` (4, 6) receives each leg's force and moment on the torso (world)
-    at the last step. Returns the number of steps done (< n_steps on divergence).
+    at the last step. With ``hold_torso`` the torso stays where it is (the legs settle
+    under it). Returns the number of steps done (< n_steps on divergence).
     """
     n_legs = pos.shape[0]
     inv_mass = 1.0 / mass
@@ -110,6 +115,8 @@ def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw
                 f_tot += fl
                 tau += np.cross(rf, fl)
                 reaction[i, 0:3] += fl
+        if hold_torso:
+            continue
         # torso: semi-implicit Euler, gyroscopic term kept
         v_new = v + h * f_tot / torso_mass
         tau_b = rot.T @ tau
@@ -193,6 +200,7 @@ class CosseratPlant:
         self._work = (np.zeros((n, 2)), np.zeros(n - 1), np.zeros((nd, 9)), np.zeros(nd), np.zeros(nd),
                       np.cos(self.theta), np.sin(self.theta), np.zeros(nd))
         self.marker_nodes = sorted({0, (n - 1) // 3, 2 * (n - 1) // 3, n - 1})
+        self._settle_legs(SETTLE_S)
 
     # ------------------------------------------------------------------ Plant interface
     def state(self) -> np.ndarray:
@@ -244,15 +252,28 @@ class CosseratPlant:
             "/legs/root": {"force_n": self.reaction[:, 0:3].copy(), "moment_nm": self.reaction[:, 3:6].copy()},
         }
 
+    def _settle_legs(self, seconds: float) -> None:
+        """Put the robot down: the torso is held at its initial pose, at rest, while the legs
+        settle onto the ground (a scenario's offsets can start the feet below it); then it
+        is released with the scenario's velocities."""
+        velocities = self.torso[7:13].copy()
+        self.torso[7:13] = 0.0
+        self._run(seconds, np.zeros(3), hold=True)
+        self.torso[7:13] = velocities
+        self.time = 0.0
+
     def step(self, forces: np.ndarray, period: float, external_force: np.ndarray | None = None,
              tendon_deg: np.ndarray | None = None) -> None:
         """Advance ``period`` with the servos tracking ``tendon_deg`` (ground forces are the legs' own)."""
         if tendon_deg is not None:
             self.servo_cmd[:] = np.deg2rad(tendon_deg)
+        f_ext = np.zeros(3) if external_force is None else np.asarray(external_force, dtype=float)
+        self._run(period, f_ext, hold=False)
+
+    def _run(self, period: float, f_ext: np.ndarray, hold: bool) -> None:
         n = max(1, int(round(period / self.dt)))
         h = period / n
         m = self.model
-        f_ext = np.zeros(3) if external_force is None else np.asarray(external_force, dtype=float)
         done = coupled_steps(self.torso, self.torso_mass, self.inertia, self.inertia_inv, self.cfg.sim.gravity,
                              self.corners, self.yaw, float(m.rest_theta[0]), self.pos, self.vel, self.theta,
                              self.omega, m.rest_pos, m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei, m.mass, m.inertia,
@@ -260,7 +281,7 @@ class CosseratPlant:
                              self.servo, self.servo_cmd, self.cfg.robot.servo.time_constant,
                              self.cfg.robot.leg.pulley_radius, self.free0, self.prev_corner, f_ext,
                              self.cfg.robot.contact.friction, self.cfg.robot.contact.slip_velocity,
-                             self.implicit, h, n, self.normal, self.out, *self._work, self.reaction)
+                             self.implicit, h, n, self.normal, self.out, *self._work, self.reaction, hold)
         self.time += done * h
         if done < n or not np.all(np.isfinite(self.torso)):
             limit = stable_dt(m, self.cfg.robot.contact.stiffness)
