@@ -53,37 +53,55 @@ def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw
     under it). Returns the number of steps done (< n_steps on divergence).
     """
     n_legs = pos.shape[0]
+    n_nodes = pos.shape[1]
     inv_mass = 1.0 / mass
     inv_inertia = 1.0 / inertia_el
+    root = np.zeros(6)
+    cy = np.cos(yaw)
+    sy = np.sin(yaw)
     for step in range(n_steps):
         p = torso[0:3]
-        q = torso[3:7]
         v = torso[7:10]
         wb = torso[10:13]
-        rot = quat_to_rot(q)
+        rot = quat_to_rot(torso[3:7])
         ww = rot @ wb
-        f_tot = f_ext.copy()
-        f_tot[2] -= torso_mass * gravity
-        tau = np.zeros(3)
+        fx_t = f_ext[0]
+        fy_t = f_ext[1]
+        fz_t = f_ext[2] - torso_mass * gravity
+        tx = 0.0
+        ty = 0.0
+        tz = 0.0
         for i in range(n_legs):
-            db = np.array([np.cos(yaw[i]), np.sin(yaw[i]), 0.0])
-            dw = rot @ db
-            horiz = np.sqrt(dw[0] ** 2 + dw[1] ** 2)
-            u = np.array([dw[0] / horiz, dw[1] / horiz, 0.0])
-            axis = np.array([u[1], -u[0], 0.0])  # u x e_z: in-plane angle rate = omega . axis
-            lat = np.array([-u[1], u[0], 0.0])
-            rc = rot @ corners[i]
-            cw = p + rc
-            vc = v + np.cross(ww, rc)
+            # leg direction in the world, its horizontal unit u, and u x e_z (in-plane angle axis)
+            dwx = rot[0, 0] * cy[i] + rot[0, 1] * sy[i]
+            dwy = rot[1, 0] * cy[i] + rot[1, 1] * sy[i]
+            dwz = rot[2, 0] * cy[i] + rot[2, 1] * sy[i]
+            horiz = np.sqrt(dwx * dwx + dwy * dwy)
+            ux = dwx / horiz
+            uy = dwy / horiz
+            # corner offset, position and velocity
+            rcx = rot[0, 0] * corners[i, 0] + rot[0, 1] * corners[i, 1] + rot[0, 2] * corners[i, 2]
+            rcy = rot[1, 0] * corners[i, 0] + rot[1, 1] * corners[i, 1] + rot[1, 2] * corners[i, 2]
+            rcz = rot[2, 0] * corners[i, 0] + rot[2, 1] * corners[i, 1] + rot[2, 2] * corners[i, 2]
+            cwx = p[0] + rcx
+            cwy = p[1] + rcy
+            cwz = p[2] + rcz
+            vcx = v[0] + ww[1] * rcz - ww[2] * rcy
+            vcy = v[1] + ww[2] * rcx - ww[0] * rcz
+            vcz = v[2] + ww[0] * rcy - ww[1] * rcx
             # keep node world positions while the root moves in the plane
-            ds = (cw[0] - prev_corner[i, 0]) * u[0] + (cw[1] - prev_corner[i, 1]) * u[1]
-            for k in range(pos.shape[1]):
+            ds = (cwx - prev_corner[i, 0]) * ux + (cwy - prev_corner[i, 1]) * uy
+            for k in range(n_nodes):
                 pos[i, k, 0] -= ds
-            prev_corner[i, 0] = cw[0]
-            prev_corner[i, 1] = cw[1]
-            prev_corner[i, 2] = cw[2]
-            root = np.array([0.0, cw[2], vc[0] * u[0] + vc[1] * u[1], vc[2],
-                             rest_theta0 + np.arctan2(dw[2], horiz), ww @ axis])
+            prev_corner[i, 0] = cwx
+            prev_corner[i, 1] = cwy
+            prev_corner[i, 2] = cwz
+            root[0] = 0.0
+            root[1] = cwz
+            root[2] = vcx * ux + vcy * uy
+            root[3] = vcz
+            root[4] = rest_theta0 + np.arctan2(dwz, horiz)
+            root[5] = ww[0] * uy - ww[1] * ux  # omega . (u x e_z)
             # servo: implicit first-order lag towards the command
             servo[i] = (servo[i] + h / servo_tau * servo_cmd[i]) / (1.0 + h / servo_tau)
             par[i, P_TFREE] = free0[i] - pulley * servo[i]
@@ -97,24 +115,46 @@ def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw
                                 moment, cth[i], sth[i])
             if out[i, O_DIV] > 0.0:
                 return step
-            fw = out[i, O_FX] * u
-            fw[2] += out[i, O_FZ]
-            mw = out[i, O_M] * axis
-            f_tot += fw
-            tau += np.cross(rc, fw) + mw
-            reaction[i, 0:3] = fw
-            reaction[i, 3:6] = mw
+            fwx = out[i, O_FX] * ux
+            fwy = out[i, O_FX] * uy
+            fwz = out[i, O_FZ]
+            mwx = out[i, O_M] * uy
+            mwy = -out[i, O_M] * ux
             # sideways foot friction, through the leg's out-of-plane rigidity
             nrm = out[i, O_N]
             if nrm > 0.0:
-                tip = pos[i, pos.shape[1] - 1]
-                foot = np.array([cw[0] + tip[0] * u[0], cw[1] + tip[0] * u[1], tip[1]])
-                rf = foot - p
-                vl = (v + np.cross(ww, rf)) @ lat
-                fl = -mu_lat * nrm * max(-1.0, min(1.0, vl / v_eps)) * lat
-                f_tot += fl
-                tau += np.cross(rf, fl)
-                reaction[i, 0:3] += fl
+                tip_s = pos[i, n_nodes - 1, 0]
+                rfx = cwx + tip_s * ux - p[0]
+                rfy = cwy + tip_s * uy - p[1]
+                rfz = pos[i, n_nodes - 1, 1] - p[2]
+                vfx = v[0] + ww[1] * rfz - ww[2] * rfy
+                vfy = v[1] + ww[2] * rfx - ww[0] * rfz
+                vl = -vfx * uy + vfy * ux  # along lat = (-uy, ux, 0)
+                fl = -mu_lat * nrm * max(-1.0, min(1.0, vl / v_eps))
+                flx = -fl * uy
+                fly = fl * ux
+                tx += -rfz * fly
+                ty += rfz * flx
+                tz += rfx * fly - rfy * flx
+                fx_t += flx
+                fy_t += fly
+                reaction[i, 0] = fwx + flx
+                reaction[i, 1] = fwy + fly
+            else:
+                reaction[i, 0] = fwx
+                reaction[i, 1] = fwy
+            reaction[i, 2] = fwz
+            reaction[i, 3] = mwx
+            reaction[i, 4] = mwy
+            reaction[i, 5] = 0.0
+            fx_t += fwx
+            fy_t += fwy
+            fz_t += fwz
+            tx += rcy * fwz - rcz * fwy + mwx
+            ty += rcz * fwx - rcx * fwz + mwy
+            tz += rcx * fwy - rcy * fwx
+        f_tot = np.array([fx_t, fy_t, fz_t])
+        tau = np.array([tx, ty, tz])
         if hold_torso:
             continue
         # torso: semi-implicit Euler, gyroscopic term kept
@@ -131,7 +171,7 @@ def coupled_steps(torso, torso_mass, inertia, inertia_inv, gravity, corners, yaw
         if angle > 0.0:
             sa = np.sin(angle) / angle
             dq[1:4] = half * sa
-        qn = quat_mul(q, dq)
+        qn = quat_mul(torso[3:7], dq)
         torso[3:7] = qn / np.sqrt(qn @ qn)
     return n_steps
 
