@@ -364,6 +364,19 @@ def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (
     typer.echo(str(run_dir))
 
 
+@app.command()
+def summarize(multirun_dir: Path = typer.Argument(..., help="A multirun's output directory (slot run -m ...).")
+              ) -> None:
+    """Gather every job of a sweep into summary.csv, summary.md and summary.png in its directory."""
+    from .summarize import summarize as summarize_sweep
+
+    try:
+        summarize_sweep(multirun_dir)
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    typer.echo(str(multirun_dir))
+
+
 def main() -> None:
     try:
         app()

@@ -207,11 +207,13 @@ class SolverConfig:
     """QP backend (``slotexp/backends``) and the settings every backend accepts.
 
     ``clarabel``, ``scs``, ``osqp`` solve through CVXPY; ``osqp_direct`` and ``daqp``
-    call their solvers directly. A solve stopped by ``max_iters`` or ``time_limit_s``
-    counts as failed and the controller applies the last feasible input.
+    call their solvers directly (``daqp``, the fastest that passes the equivalence
+    tests, is the default; ``scs`` is the paper's stack). ``time_limit_s`` is the
+    deadline of a whole MPC update (build + solve). A solve stopped by ``max_iters``
+    or the deadline counts as failed and the controller applies the last feasible input.
     """
 
-    name: str = _choice("clarabel", "scs", "osqp", "clarabel", "osqp_direct", "daqp")
+    name: str = _choice("daqp", "clarabel", "scs", "osqp", "osqp_direct", "daqp")
     eps_abs: float = _num(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
     eps_rel: float = _num(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
     max_iters: int = _num(10000, lo=1, unit="")

@@ -14,7 +14,7 @@ import numpy as np
 from .actuation import tendon_angle_deg
 from .config import SlotConfig
 from .gait import ContactPlan, GaitMatrix, contact_plan, tendon_profile
-from .mpc import ConvexMpc, MpcSolution, constraint_violations
+from .mpc import MpcSolution, constraint_violations, make_mpc
 from .reference import reference
 from .robot import RobotModel
 
@@ -36,7 +36,7 @@ class Controller:
         self.robot = robot
         self.period = 1.0 / cfg.mpc.rate_hz
         self.gait = GaitMatrix(cfg.gait.phases)
-        self.mpc = ConvexMpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
+        self.mpc = make_mpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
         self.weight = robot.mass * cfg.sim.gravity
         self.last_feasible = np.tile([0.0, 0.0, self.weight / 4.0], (4, 1))
         self.infeasible_steps = 0

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numba import njit
@@ -36,9 +36,6 @@ from numba import njit
 from .body import rot_z
 from .config import MpcConfig, SolverConfig
 from .gait import ContactPlan
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .backends.cvxpy_qp import CvxpyMpc
 
 N_STATE = 12
 N_INPUT = 12
@@ -140,10 +137,11 @@ class Mpc(Protocol):
 class DiscreteModel:
     """The prediction model for one step, computed once and shared by a backend's build and rollout."""
 
-    __slots__ = ("a_c", "a", "b", "g")
+    __slots__ = ("a", "a_c", "b", "g")
 
     def __init__(self, x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray,
                  gravity: float, period: float) -> None:
+        """``x`` and ``lever_arms`` as contiguous float arrays (the backends' hot path converts once)."""
         a_c, b_c, g_c = _model(x, lever_arms, mass, inertia_body_inv, gravity)
         self.a_c = a_c
         self.a, self.b, self.g = _discretize(a_c, b_c, g_c, period)
@@ -163,19 +161,32 @@ def _rollout(x0: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray, g: np.
     return xs, cost
 
 
-def solution_from_inputs(u: np.ndarray, x: np.ndarray, x_ref: np.ndarray, model: DiscreteModel, cfg: MpcConfig,
-                         status: str, iterations: int, solve_time_s: float, started: float) -> MpcSolution:
+def solution_from_inputs(u: np.ndarray, x: np.ndarray, x_ref: np.ndarray, model: DiscreteModel,
+                         weights: tuple[np.ndarray, float], status: str, iterations: int, solve_time_s: float,
+                         started: float, time_limit_s: float = 0.0) -> MpcSolution:
     """A successful solution from the planned inputs ``u`` (H, 12); ``started`` is the solve's perf_counter().
 
     The predicted states are rolled out through the model, so they satisfy the
     dynamics exactly whatever the backend's equality tolerance, and the objective
     is evaluated on them (paper eq. 8, without the solver's objective scaling).
-    The wall time covers the whole step: build or update, solve, and this rollout.
+    ``weights`` is (q_diag as an array, r_weight), unscaled. The wall time covers the
+    whole step: build or update, solve, and this rollout.
     """
     u = np.ascontiguousarray(u, dtype=float)
-    xs, cost = _rollout(x, u, model.a, model.b, model.g, np.ascontiguousarray(x_ref, dtype=float),
-                        np.asarray(cfg.q_diag, dtype=float), float(cfg.r_weight))
+    xs, cost = _rollout(x, u, model.a, model.b, model.g, x_ref, weights[0], weights[1])
+    return solution_from_rollout(u, xs, cost, status, iterations, solve_time_s, started, time_limit_s)
+
+
+def solution_from_rollout(u: np.ndarray, xs: np.ndarray, cost: float, status: str, iterations: int,
+                          solve_time_s: float, started: float, time_limit_s: float = 0.0) -> MpcSolution:
+    """A solution from inputs, predicted states and objective already computed.
+
+    ``time_limit_s`` > 0 is the deadline of the whole update: a plan that arrives
+    later counts as a failed solve ("time_limit"), whatever the solver reported.
+    """
     wall_time_s = time.perf_counter() - started
+    if 0.0 < time_limit_s < wall_time_s:
+        return failed_solution(u.shape[0], "time_limit", iterations, solve_time_s, started)
     return MpcSolution(forces=u[0].reshape(4, 3).copy(), plan_fz=u[:, 2::3].copy(), predicted=xs, status=status,
                        success=True, iterations=int(iterations), solve_time_s=float(solve_time_s),
                        wall_time_s=float(wall_time_s), objective=float(cost), inputs=u)
@@ -190,6 +201,18 @@ def failed_solution(horizon: int, status: str, iterations: int, solve_time_s: fl
                        predicted=nan((horizon + 1, N_STATE), np.nan), status=status, success=False,
                        iterations=int(iterations), solve_time_s=float(solve_time_s), wall_time_s=float(wall_time_s),
                        objective=float("nan"))
+
+
+def remaining(started: float, time_limit_s: float) -> float:
+    """What is left of the update's deadline for the solver itself (0 = no limit; never 0 once set)."""
+    if time_limit_s <= 0.0:
+        return 0.0
+    return max(time_limit_s - (time.perf_counter() - started), 1e-9)
+
+
+def objective_weights(cfg: MpcConfig) -> tuple[np.ndarray, float]:
+    """(q_diag, r_weight) of the reported objective, unscaled."""
+    return np.asarray(cfg.q_diag, dtype=float), float(cfg.r_weight)
 
 
 def make_mpc(cfg_mpc: MpcConfig, cfg_solver: SolverConfig, mass: float, inertia_body: np.ndarray,

@@ -1,0 +1,152 @@
+"""The QP written once in CVXPY (sparse form: states and forces are both variables).
+
+DPP-compliant Parameters mean each solve only updates parameter values and never
+recompiles. This is the paper's modelling stack (with ``solver=scs`` its solver)
+and the reference the direct backends are tested against.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+
+import cvxpy as cp
+import numpy as np
+
+from ..config import MpcConfig, SolverConfig
+from ..gait import ContactPlan
+from ..mpc import (
+    N_INPUT,
+    N_STATE,
+    SUCCESS,
+    DiscreteModel,
+    MpcSolution,
+    failed_solution,
+    objective_weights,
+    solution_from_inputs,
+)
+from . import CVXPY_BACKENDS
+
+
+def solver_options(solver: SolverConfig) -> tuple[str, dict]:
+    """CVXPY solver name and its options for the shared settings.
+
+    The time limit goes to the solver as its own limit; the update as a whole
+    (CVXPY's parameter handling included) is also held to it by ``solution_from_inputs``.
+    """
+    limit = solver.time_limit_s if solver.time_limit_s > 0 else None
+    if solver.name == "osqp":
+        opts = dict(eps_abs=solver.eps_abs, eps_rel=solver.eps_rel, max_iter=solver.max_iters, polish=True)
+        if limit:
+            opts["time_limit"] = limit
+        return cp.OSQP, opts
+    if solver.name == "scs":
+        opts = dict(eps_abs=solver.eps_abs, eps_rel=solver.eps_rel, max_iters=solver.max_iters)
+        if limit:
+            opts["time_limit_secs"] = limit
+        return cp.SCS, opts
+    if solver.name == "clarabel":
+        opts = dict(tol_gap_abs=solver.eps_abs, tol_gap_rel=solver.eps_rel, tol_feas=solver.eps_abs,
+                    max_iter=solver.max_iters)
+        if limit:
+            opts["time_limit"] = limit
+        return cp.CLARABEL, opts
+    raise ValueError(f"unknown CVXPY solver {solver.name!r}")
+
+
+class CvxpyMpc:
+    """The paper's QP, built once; :meth:`solve` only sets parameter values.
+
+    Given a non-CVXPY backend's name (``osqp_direct``, ``daqp``) it solves with
+    Clarabel, so the CVXPY formulation can always be built and inspected.
+    """
+
+    def __init__(self, cfg: MpcConfig, solver: SolverConfig, mass: float, inertia_body: np.ndarray,
+                 gravity: float) -> None:
+        self.cfg = cfg
+        self.solver_cfg = solver
+        self.mass = mass
+        self.inertia_body = np.asarray(inertia_body, dtype=float)
+        self.inertia_inv = np.linalg.inv(self.inertia_body)
+        self.gravity = gravity
+        self.period = 1.0 / cfg.rate_hz
+        self.q = np.asarray(cfg.q_diag, dtype=float)
+        self.weights = objective_weights(cfg)
+        h = cfg.horizon
+        name = solver.name if solver.name in CVXPY_BACKENDS else "clarabel"
+        self._solver, self._options = solver_options(_named(solver, name))
+
+        self.x0 = cp.Parameter(N_STATE, name="x0")
+        self.x_ref = cp.Parameter((N_STATE, h), name="x_ref")
+        self.a = cp.Parameter((N_STATE, N_STATE), name="A")
+        self.b = [cp.Parameter((N_STATE, N_INPUT), name=f"B{k}") for k in range(h)]
+        self.g = cp.Parameter(N_STATE, name="g")
+        self.mu = cp.Parameter((4, h), nonneg=True, name="mu")
+        self.fz_min = cp.Parameter((4, h), nonneg=True, name="fz_min")
+        self.fz_max = cp.Parameter((4, h), nonneg=True, name="fz_max")
+        self.x = cp.Variable((N_STATE, h + 1), name="x")
+        self.u = cp.Variable((N_INPUT, h), name="u")
+
+        fx, fy, fz = self.u[0::3, :], self.u[1::3, :], self.u[2::3, :]
+        weight = mass * gravity
+        constraints = [self.x[:, 0] == self.x0]
+        constraints += [self.x[:, k + 1] == self.a @ self.x[:, k] + self.b[k] @ self.u[:, k] + self.g
+                        for k in range(h)]
+        constraints += [
+            fz <= self.fz_max,
+            fz >= self.fz_min,
+            fx <= cp.multiply(self.mu, fz), -fx <= cp.multiply(self.mu, fz),
+            fy <= cp.multiply(self.mu, fz), -fy <= cp.multiply(self.mu, fz),
+            cp.sum(fz, axis=0) <= weight + cfg.force_balance_band,
+            cp.sum(fz, axis=0) >= weight - cfg.force_balance_band,
+        ]
+        sqrt_q = np.sqrt(self.q)[:, None]
+        tracking = cp.sum_squares(cp.multiply(sqrt_q, self.x[:, 1:] - self.x_ref))
+        effort = cfg.r_weight * cp.sum_squares(self.u)
+        self.problem = cp.Problem(cp.Minimize(cfg.objective_scale * (tracking + effort)), constraints)
+        if not self.problem.is_dpp():  # pragma: no cover - guards future edits
+            raise RuntimeError("MPC problem is not DPP-compliant; it would recompile every step")
+
+    def set_model(self, x: np.ndarray, lever_arms: np.ndarray) -> DiscreteModel:
+        as_f64 = np.ascontiguousarray
+        model = DiscreteModel(as_f64(x, dtype=float), as_f64(lever_arms, dtype=float), self.mass, self.inertia_inv,
+                              self.gravity, self.period)
+        self.a.value = model.a
+        self.g.value = model.g
+        for b in self.b:
+            b.value = model.b
+        return model
+
+    def solve(self, x: np.ndarray, x_ref: np.ndarray, lever_arms: np.ndarray, plan: ContactPlan) -> MpcSolution:
+        """Solve for the forces; ``x_ref`` is (H, 12), ``plan`` arrays are (H, 4)."""
+        start = time.perf_counter()
+        model = self.set_model(x, lever_arms)
+        self.x0.value = x
+        self.x_ref.value = x_ref.T
+        self.mu.value = plan.mu.T
+        self.fz_min.value = plan.fz_min.T
+        self.fz_max.value = plan.fz_max.T
+        status, iterations, solve_time = "solver_error", 0, float("nan")
+        try:
+            with warnings.catch_warnings():  # the status is recorded; no console noise per step
+                warnings.simplefilter("ignore")
+                self.problem.solve(solver=self._solver, warm_start=self.solver_cfg.warm_start,
+                                   verbose=self.solver_cfg.verbose, **self._options)
+            status = self.problem.status
+            stats = self.problem.solver_stats
+            iterations = int(stats.num_iters or 0)
+            solve_time = float(stats.solve_time) if stats.solve_time is not None else float("nan")
+        except cp.error.SolverError:
+            pass
+        if status in SUCCESS and self.u.value is not None:
+            return solution_from_inputs(self.u.value.T, np.ascontiguousarray(x, dtype=float),
+                                        np.ascontiguousarray(x_ref, dtype=float), model, self.weights, status,
+                                        iterations, solve_time, start, self.solver_cfg.time_limit_s)
+        return failed_solution(self.cfg.horizon, status, iterations, solve_time, start)
+
+
+def _named(solver: SolverConfig, name: str) -> SolverConfig:
+    if solver.name == name:
+        return solver
+    return dataclasses.replace(solver, name=name)

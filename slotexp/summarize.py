@@ -1,0 +1,172 @@
+"""``slot summarize <multirun dir>``: one table and one figure for a whole sweep.
+
+Each job directory of a Hydra multirun (``<n>_<overrides>/`` holding
+``.hydra/overrides.yaml``, ``logs/*.mcap`` and ``table1.csv`` or ``metrics.json``)
+becomes one row: the solver, every setting the sweep varied, the Table I metrics
+aggregated over the job's scenarios, the MPC update time (median, p99, max of
+``/mpc/stats`` ``wall_time_s`` over every logged step but each log's first, which
+also pays the backend's one-off setup) and the infeasible steps
+(total, and in deterministic scenarios). Written as ``summary.csv``,
+``summary.md`` and ``summary.png`` in the multirun directory.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from .errors import UserError
+from .figures.style import new_figure, save
+from .record import LogReadError, read_log
+from .tables import to_markdown
+
+OVERRIDES = Path(".hydra") / "overrides.yaml"
+CONFIG = Path(".hydra") / "config.yaml"
+
+
+def find_jobs(multirun_dir: Path) -> list[Path]:
+    """Job directories in sweep order (Hydra's job number prefix)."""
+    if not multirun_dir.is_dir():
+        raise UserError(f"{multirun_dir}: not a directory: give a multirun directory (experiments/multirun/<time>)")
+    jobs = [p for p in multirun_dir.iterdir() if p.is_dir() and (p / OVERRIDES).is_file()]
+    if not jobs:
+        raise UserError(f"{multirun_dir}: no job directories (<job>/.hydra/overrides.yaml): is this the output "
+                        f"directory of `slot run -m ...`?")
+
+    def number(p: Path) -> tuple[int, str]:
+        head = p.name.split("_", 1)[0]
+        return (int(head) if head.isdigit() else 1 << 30, p.name)
+
+    return sorted(jobs, key=number)
+
+
+def _overrides(job: Path) -> dict[str, str]:
+    try:
+        items = yaml.safe_load((job / OVERRIDES).read_text()) or []
+    except (OSError, yaml.YAMLError) as exc:
+        raise UserError(f"{job / OVERRIDES}: cannot read the job's overrides ({exc.__class__.__name__})") from exc
+    out = {}
+    for item in items:
+        key, _, value = str(item).partition("=")
+        if not key.lstrip("+~").startswith("hydra"):
+            out[key.lstrip("+~")] = value
+    return out
+
+
+def _deterministic(job: Path) -> dict[str, bool]:
+    """Scenario name -> deterministic, from the job's composed config (all deterministic if unknown)."""
+    try:
+        cfg = yaml.safe_load((job / CONFIG).read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return {}
+    return {name: bool(sc.get("deterministic", True)) for name, sc in (cfg.get("scenarios") or {}).items()}
+
+
+def _metrics(job: Path) -> dict[str, float]:
+    """Table I aggregated over the job's scenarios, or the flat numbers of metrics.json."""
+    table = job / "table1.csv"
+    if table.is_file():
+        t = pd.read_csv(table)
+        settle = pd.to_numeric(t["settle_s"], errors="coerce")
+        return {"scenarios": len(t), "max_cost": float(t["max_cost"].max()),
+                "mean_cost": float(t["mean_cost"].mean()), "final_cost_max": float(t["final_cost"].max()),
+                "settle_s_max": float(settle.max()) if settle.notna().any() else math.nan,
+                "unsettled": int(settle.isna().sum())}
+    path = job / "metrics.json"
+    if path.is_file():
+        data = json.loads(path.read_text())
+        return {k: float(v) for k, v in data.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+    return {}
+
+
+def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
+    """Update time over every logged MPC step, and infeasible (fallback) steps."""
+    walls, infeasible, infeasible_det, steps = [], 0, 0, 0
+    for path in sorted((job / "logs").glob("*.mcap")):
+        try:
+            log = read_log(path)
+        except LogReadError as exc:
+            raise UserError(f"{path}: {str(exc).splitlines()[0]}") from exc
+        if "/mpc/stats" not in log:
+            continue
+        stats = log["/mpc/stats"]
+        walls.append(stats["wall_time_s"].to_numpy(float)[1:])  # the first step also pays one-off setup
+        fallback = int(stats["fallback"].astype(bool).sum())
+        infeasible += fallback
+        scenario = log.metadata.get("run", {}).get("scenario", path.stem)
+        infeasible_det += fallback if deterministic.get(scenario, True) else 0
+        steps += len(stats)
+    w = np.concatenate(walls) * 1e3 if walls else np.zeros(0)
+    if not w.size:
+        return {"steps": steps, "infeasible_steps": infeasible, "infeasible_deterministic": infeasible_det}
+    return {"steps": steps, "update_median_ms": float(np.median(w)), "update_p99_ms": float(np.percentile(w, 99)),
+            "update_max_ms": float(w.max()), "infeasible_steps": infeasible,
+            "infeasible_deterministic": infeasible_det}
+
+
+def summarize(multirun_dir: Path) -> pd.DataFrame:
+    """The summary table (one row per job); also writes summary.csv/.md/.png into ``multirun_dir``."""
+    multirun_dir = Path(multirun_dir)
+    jobs = find_jobs(multirun_dir)
+    overrides = {job: _overrides(job) for job in jobs}
+    keys = sorted({k for o in overrides.values() for k in o})
+    swept = [k for k in keys if len({o.get(k) for o in overrides.values()}) > 1 and k != "solver"]
+    rows = []
+    for job in jobs:
+        o = overrides[job]
+        row = {"job": job.name, "solver": o.get("solver", _configured_solver(job))}
+        row.update({k: o.get(k, "") for k in swept})
+        row.update(_metrics(job))
+        row.update(_timing(job, _deterministic(job)))
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    table.to_csv(multirun_dir / "summary.csv", index=False, float_format="%.6g")
+    (multirun_dir / "summary.md").write_text(
+        f"Sweep `{multirun_dir}`: {len(jobs)} jobs. Update time = /mpc/stats wall_time_s (build or update + solve) "
+        f"over every logged MPC step but each log's first (one-off setup); infeasible = fallback steps "
+        f"(deterministic: in scenarios without noise).\n\n" + to_markdown(table) + "\n")
+    _plot(table, multirun_dir / "summary.png")
+    return table
+
+
+def _configured_solver(job: Path) -> str:
+    try:
+        cfg = yaml.safe_load((job / CONFIG).read_text()) or {}
+        return str((cfg.get("solver") or {}).get("name", "?"))
+    except (OSError, yaml.YAMLError):
+        return "?"
+
+
+def _plot(table: pd.DataFrame, path: Path) -> None:
+    """Update time (median and p99) and infeasible steps per job."""
+    fig = new_figure(max(6.0, 1.1 * len(table) + 2.0), 5.5)
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
+    labels = [f"{r['solver']}" + "".join(f"\n{c}={r[c]}" for c in table.columns
+                                         if c not in _FIXED and isinstance(r[c], str) and r[c])
+              for _, r in table.iterrows()]
+    x = np.arange(len(table))
+    for col, offset, name in (("update_median_ms", -0.2, "median"), ("update_p99_ms", 0.2, "p99")):
+        if col in table:
+            top.bar(x + offset, table[col], width=0.4, label=name)
+    top.set_yscale("log")
+    top.set_ylabel("MPC update (ms)")
+    top.axhline(1000.0 / 30.0, color="grey", lw=0.8, ls="--", label="33 ms period")
+    top.legend(fontsize=8)
+    top.grid(True, axis="y", which="both", alpha=0.3)
+    if "infeasible_steps" in table:
+        bottom.bar(x, table["infeasible_steps"], color="#d62728")
+        for xi, v in zip(x, table["infeasible_steps"]):
+            bottom.annotate(f"{int(v)}" if np.isfinite(v) else "—", (xi, 0), ha="center", va="bottom", fontsize=8)
+        top_count = float(np.nanmax(table["infeasible_steps"])) if len(table) else 0.0
+        bottom.set_ylim(0, max(1.0, 1.25 * top_count))
+    bottom.set_ylabel("infeasible steps")
+    bottom.set_xticks(x, labels, fontsize=8)
+    save(fig, path)
+
+
+_FIXED = {"job", "solver"}

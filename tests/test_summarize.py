@@ -1,0 +1,70 @@
+"""``slot summarize``: a sweep's jobs gathered into one table and one figure; bad input is one line."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from slotexp.summarize import summarize
+from tests.test_cli import assert_one_line_error, last_line, ok, slot
+
+TABLE1 = "scenario,max_cost,mean_cost,final_cost,settle_s,infeasible_steps\n"
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("sweep")
+    out = root / "multirun"
+    ok(slot("run", "-m", "experiment=perturb", "experiment.scenarios=[baseline,noise]", "experiment.duration=0.5",
+            "experiment.n_jobs=1", "solver=daqp,osqp_direct", f"hydra.sweep.dir={out}", cwd=root, timeout=300))
+    return out
+
+
+def test_summarize_gathers_every_job_of_a_sweep(sweep: Path) -> None:
+    proc = ok(slot("summarize", sweep, cwd=sweep.parent))
+    assert last_line(proc.stdout) == str(sweep)
+    table = pd.read_csv(sweep / "summary.csv")
+    assert list(table["solver"]) == ["daqp", "osqp_direct"]
+    assert (table["scenarios"] == 2).all() and (table["steps"] == 2 * 15).all()
+    assert (table["infeasible_steps"] == 0).all() and (table["infeasible_deterministic"] == 0).all()
+    assert ((table["update_median_ms"] > 0) & (table["update_p99_ms"] >= table["update_median_ms"])).all()
+    assert (table["update_max_ms"] >= table["update_p99_ms"]).all()
+    for col in ("max_cost", "mean_cost", "final_cost_max"):
+        assert table[col].notna().all() and (table[col] >= 0).all()
+    md = (sweep / "summary.md").read_text()
+    assert "daqp" in md and "osqp_direct" in md
+    assert (sweep / "summary.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_swept_settings_become_columns_and_deterministic_counts_apart(tmp_path: Path, sweep: Path) -> None:
+    for i, horizon in enumerate((10, 12)):
+        job = tmp_path / f"{i}_mpc.horizon={horizon},solver=scs"
+        (job / ".hydra").mkdir(parents=True)
+        (job / ".hydra" / "overrides.yaml").write_text(f"- mpc.horizon={horizon}\n- solver=scs\n"
+                                                       f"- hydra.sweep.dir=x\n")
+        (job / "table1.csv").write_text(TABLE1 + f"baseline,0.{i + 1},0.01,0.0,0.5,0\nnoise,0.2,0.02,0.001,,3\n")
+    # one job also has logs: the noise scenario's fallbacks are not deterministic infeasible steps
+    shutil.copytree(next(sweep.glob("0_*")) / "logs", tmp_path / "0_mpc.horizon=10,solver=scs" / "logs")
+    table = summarize(tmp_path)
+    assert list(table["mpc.horizon"]) == ["10", "12"] and "hydra.sweep.dir" not in table
+    assert list(table["solver"]) == ["scs", "scs"]
+    assert list(table["max_cost"]) == [0.2, 0.2] and list(table["unsettled"]) == [1, 1]
+    assert table.loc[0, "steps"] == 30 and table.loc[1, "steps"] == 0
+    assert (tmp_path / "summary.csv").is_file() and (tmp_path / "summary.png").is_file()
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "corrupt_log"])
+def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, sweep: Path, case: str) -> None:
+    target = tmp_path / "multirun"
+    if case == "empty":
+        target.mkdir()
+    elif case == "corrupt_log":
+        shutil.copytree(sweep, target, ignore=shutil.ignore_patterns("summary.*"))
+        log = next(target.glob("1_*/logs/*.mcap"))
+        log.write_bytes(b"not an mcap file at all")
+    proc = slot("summarize", target, cwd=tmp_path)
+    line = assert_one_line_error(proc)
+    assert str(target) in line or "multirun" in line
