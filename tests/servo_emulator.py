@@ -38,7 +38,8 @@ from dataclasses import dataclass, field
 INST_PING, INST_READ, INST_WRITE, INST_REBOOT = 0x01, 0x02, 0x03, 0x08
 INST_SYNC_READ, INST_SYNC_WRITE, INST_STATUS = 0x82, 0x83, 0x55
 BROADCAST = 0xFE
-ERR_RESULT_FAIL, ERR_INSTRUCTION, ERR_CRC, ERR_DATA_RANGE, ERR_DATA_LENGTH, ERR_DATA_LIMIT, ERR_ACCESS = 1, 2, 3, 4, 5, 6, 7
+ERR_RESULT_FAIL, ERR_INSTRUCTION, ERR_CRC, ERR_DATA_RANGE = 1, 2, 3, 4
+ERR_DATA_LENGTH, ERR_DATA_LIMIT, ERR_ACCESS = 5, 6, 7
 ALERT = 0x80
 XL430_MODEL = 1060
 HEADER = b"\xff\xff\xfd\x00"
@@ -528,3 +529,54 @@ class ServoEmulator:
                 s.set("present_load", 0)
             s.set("present_position", int(round(s.position)))
             s.set("moving", int(abs(s.get("goal_position") - s.position) > 1 and bool(s.get("torque_enable"))))
+
+
+class OdometryPublisher:
+    """The VIO end of the odometry wire: a ZeroMQ PUB socket on a free loopback port sending JSON states.
+
+    ``pose(t)`` gives (position, quaternion xyzw, linear velocity, angular velocity in the body
+    frame) at publisher time ``t``; by default the robot stands still at ``height``. ``stop_after``
+    (s) makes it fall silent, as a crashed estimator would.
+    """
+
+    def __init__(self, rate_hz: float = 100.0, height: float = 0.04, stop_after: float | None = None,
+                 pose=None, endpoint: str = "tcp://127.0.0.1:*") -> None:
+        import zmq
+
+        self.rate_hz = rate_hz
+        self.stop_after = stop_after
+        self.pose = pose or (lambda t: ([0.0, 0.0, height], [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]))
+        self._ctx = zmq.Context()
+        self._sock = self._ctx.socket(zmq.PUB)
+        self._sock.setsockopt(zmq.LINGER, 0)
+        self._sock.bind(endpoint)
+        self.endpoint = self._sock.getsockopt(zmq.LAST_ENDPOINT).decode()
+        self.sent = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="odometry-publisher", daemon=True)
+
+    def _run(self) -> None:
+        import json
+
+        t0 = time.monotonic()
+        period = 1.0 / self.rate_hz
+        k = 0
+        while not self._stop.is_set():
+            t = time.monotonic() - t0
+            if self.stop_after is None or t < self.stop_after:
+                p, q, v, w = self.pose(t)
+                self._sock.send(json.dumps({"t": t, "position": list(p), "orientation": list(q),
+                                            "linear_velocity": list(v), "angular_velocity": list(w)}).encode())
+                self.sent += 1
+            k += 1
+            time.sleep(max(0.0, t0 + k * period - time.monotonic()))
+
+    def __enter__(self) -> "OdometryPublisher":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self._sock.close(0)
+        self._ctx.term()

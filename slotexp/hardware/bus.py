@@ -49,8 +49,11 @@ class ServoBus(Protocol):
 
     ids: list[int]
 
-    def open(self, dry_run: bool) -> list[str]:
-        """Connect, ping, check model and errors, configure (not in a dry run); return notes for the user."""
+    def open(self) -> list[str]:
+        """Connect, ping, check model numbers and hardware errors; no writes. Return notes for the user."""
+
+    def configure(self, dry_run: bool) -> list[str]:
+        """Torque off, position mode, limits, profile velocity; in a dry run only say what would change."""
 
     def enable(self) -> None:
         """Hold the present position, torque on, arm the bus watchdog."""
@@ -137,7 +140,7 @@ class DynamixelBus:
         raise BusError(f"servo {servo_id} ({self._leg(servo_id)}): writing {what} failed {self._where()}: {msg}")
 
     # ------------------------------------------------------------------ interface
-    def open(self, dry_run: bool) -> list[str]:
+    def open(self) -> list[str]:
         import serial
         from dynamixel_sdk import GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
 
@@ -155,9 +158,8 @@ class DynamixelBus:
         if not opened:
             raise UserError(f"cannot open serial port {port_name} at {self.cfg.baudrate} baud")
         try:
-            notes = self._latency_notes()
             self._ping_all()
-            notes += self._check_and_configure(dry_run)
+            self._check_errors()
         except BusError as exc:
             raise UserError(str(exc)) from None
         self._reader = GroupSyncRead(self._port, self._ph, X.PRESENT_BLOCK_ADDR, X.PRESENT_BLOCK_LEN)
@@ -166,7 +168,7 @@ class DynamixelBus:
         for i in self.ids:
             self._reader.addParam(i)
             self._error_reader.addParam(i)
-        return notes
+        return self._latency_notes()
 
     def _latency_notes(self) -> list[str]:
         """The U2D2's FTDI chip holds replies up to latency_timer ms; 16 (the default) breaks a 30 Hz loop."""
@@ -196,14 +198,23 @@ class DynamixelBus:
                 raise UserError(f"servo ID {servo_id} ({leg}) reports model number {model}, expected "
                                 f"{self.cfg.model_number} (XL430-W250): check hardware.ids and the servo")
 
-    def _check_and_configure(self, dry_run: bool) -> list[str]:
-        notes: list[str] = []
-        profile = int(round(self.cfg.profile_velocity_rpm / X.RPM_PER_VELOCITY_UNIT))
-        for k, (leg, i) in enumerate(zip(self.legs, self.ids)):
+    def _check_errors(self) -> None:
+        for leg, i in zip(self.legs, self.ids):
             err = self._read_reg(i, X.ADDR_HARDWARE_ERROR_STATUS, 1, "Hardware Error Status")
             if err:
                 raise UserError(f"servo ID {i} ({leg}) reports hardware error {X.describe_hardware_error(err)}: "
                                 f"remove the cause, then reboot it (power cycle or Dynamixel Wizard > Reboot)")
+
+    def configure(self, dry_run: bool) -> list[str]:
+        try:
+            return self._configure(dry_run)
+        except BusError as exc:
+            raise UserError(str(exc)) from None
+
+    def _configure(self, dry_run: bool) -> list[str]:
+        notes: list[str] = []
+        profile = int(round(self.cfg.profile_velocity_rpm / X.RPM_PER_VELOCITY_UNIT))
+        for k, (leg, i) in enumerate(zip(self.legs, self.ids)):
             torque = self._read_reg(i, X.ADDR_TORQUE_ENABLE, 1, "Torque Enable")
             mode = self._read_reg(i, X.ADDR_OPERATING_MODE, 1, "Operating Mode")
             lo = self._read_reg(i, X.ADDR_MIN_POSITION_LIMIT, 4, "Min Position Limit")

@@ -8,7 +8,6 @@ range, so no command can ever leave either.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,8 +28,8 @@ class ServoMap:
 
     @classmethod
     def from_config(cls, hw: HardwareConfig, tendon_max_deg: float) -> "ServoMap":
-        lo = [math.ceil(d / DEG_PER_TICK - 1e-9) for d in hw.min_position_deg]
-        hi = [math.floor(d / DEG_PER_TICK + 1e-9) for d in hw.max_position_deg]
+        lo = [round(d / DEG_PER_TICK) for d in hw.min_position_deg]  # the nearest tick: within 0.044 deg
+        hi = [round(d / DEG_PER_TICK) for d in hw.max_position_deg]
         return cls(np.asarray(hw.zero_offset_deg, float), np.asarray(hw.direction, float),
                    np.asarray(lo, np.int64), np.asarray(hi, np.int64), float(tendon_max_deg))
 

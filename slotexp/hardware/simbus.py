@@ -6,11 +6,14 @@ move toward their goals at the profile velocity, all advanced in wall-clock time
 :class:`SimulatedBus` is its :class:`~.bus.ServoBus`; :class:`~.odometry.SimOdometry`
 reads its state. The control loop cannot tell it from the robot.
 
-The ideal plant has no leg mechanics, so a tendon angle can only become a normal
-force through the inverse of eq. 11 (:func:`slotexp.actuation.normal_force`), pushing
-up at the nominal foot; there is no traction. A HIL run therefore exercises the
-loop, the bus interface and the timing, not locomotion. While torque is off (before
-``enable``, in a dry run) the world is frozen: nothing is commanded, nothing moves.
+The plant gets both forms of the servos' output (:meth:`slotexp.plant.Plant.step`):
+the tendon angles, which drive a soft-leg plant (``plant=cosserat``, whose own servo
+model then adds its short lag), and the normal forces eq. 11 predicts for them
+(inverse map, :func:`slotexp.actuation.normal_force`), which is all the ideal plant
+can use: it has no leg mechanics to turn a tendon pull into traction, so with
+``plant=ideal`` a HIL run exercises the loop, the bus interface and the timing, not
+locomotion. While torque is off (before ``enable``, in a dry run) the world is held
+still: nothing is commanded, nothing moves.
 """
 
 from __future__ import annotations
@@ -53,6 +56,10 @@ class SimWorld:
         self.sim_time = 0.0
         self._last = clock()
 
+    def tendon_deg(self) -> np.ndarray:
+        """The tendon angles the servos hold now (what a soft-leg plant is driven by)."""
+        return self.smap.to_tendon_deg(self.position)
+
     def forces(self) -> np.ndarray:
         """Ground forces (4, 3): the normal force eq. 11 predicts for each servo's present tendon angle."""
         if not self.torque:
@@ -73,7 +80,7 @@ class SimWorld:
         step = np.clip(self.goal - self.position, -self.max_ticks_per_s * dt, self.max_ticks_per_s * dt)
         self.position += step
         self.velocity = step / dt
-        self.plant.step(self.forces(), dt)
+        self.plant.step(self.forces(), dt, None, self.tendon_deg())
         self.sim_time += dt
 
 
@@ -84,7 +91,10 @@ class SimulatedBus:
     world: SimWorld
     ids: list[int] = field(default_factory=lambda: [1, 2, 3, 4])
 
-    def open(self, dry_run: bool) -> list[str]:
+    def open(self) -> list[str]:
+        return []
+
+    def configure(self, dry_run: bool) -> list[str]:
         return []
 
     def enable(self) -> None:

@@ -1,0 +1,32 @@
+"""Metrics and figures from a hardware run's log: what `slot hardware` writes at the end and `slot figures` redoes.
+
+The log has the simulation schema, so the simulate experiment's report applies
+unchanged (CoM against reference, Fig. 4; path, Fig. 6; tracking metrics); the
+loop-timing summary from the log's ``loop`` record is added to ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..jobs.simulate import report as simulate_report
+from ..record import read_log
+from ..runlog import find_logs
+
+DRIFT_DISTANCE_M = 0.8  # as the simulate experiment's default: lateral drift over the first 0.8 m
+
+
+def report(run_dir: Path, velocity: list[float], legs: list[str]) -> dict:
+    """Write metrics.json, fig4_com.png and fig6_path.png for a hardware run directory."""
+    result = simulate_report(run_dir, list(velocity), DRIFT_DISTANCE_M, list(legs))
+    meta = read_log(find_logs(run_dir)[0]).metadata
+    result["loop"] = {k: float(v) for k, v in meta.get("loop", {}).items()}
+    result["stop_reason"] = meta.get("summary", {}).get("stop_reason", "")
+    (run_dir / "metrics.json").write_text(json.dumps(result, indent=2))
+    return result
+
+
+def report_from_log(run_dir: Path, conf) -> dict:
+    """``slot figures`` entry: the settings come from the config stored in the log."""
+    return report(run_dir, list(conf.gait.velocity), list(conf.robot.leg.names))

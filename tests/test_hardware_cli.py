@@ -1,0 +1,168 @@
+"""`slot hardware` as a user runs it: a subprocess against the servo emulator (pty) and a ZeroMQ publisher.
+
+Covers what only a separate process can show: Ctrl-C turns every servo's torque off,
+a killed process is stopped by the servos' bus watchdog, a dry run writes nothing,
+bad input is one line and exit 2, and the hardware log works with `slot figures`
+and `slot run experiment=validate`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servo_emulator import OdometryPublisher, ServoEmulator
+from slotexp.record import read_log
+from test_cli import SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot
+
+
+def start(emu: ServoEmulator, pub: OdometryPublisher, run_dir: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [*SLOT_CMD, "hardware", f"hardware.port={emu.port}", f"odometry.endpoint={pub.endpoint}",
+         f"hydra.run.dir={run_dir}", *extra],
+        cwd=run_dir.parent, env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True)
+
+
+def wait_for_torque(emu: ServoEmulator, proc: subprocess.Popen, timeout: float = 40) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        if all(emu.torque().values()) and len(emu.goal_writes()) >= 4 * 6:  # torque on, a few cycles run
+            return
+        time.sleep(0.02)
+    proc.kill()
+    raise AssertionError(f"the loop never started:\n{proc.communicate()[1]}")
+
+
+def test_ctrl_c_turns_the_torque_off_and_closes_the_log(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    with ServoEmulator() as emu, OdometryPublisher() as pub:
+        proc = start(emu, pub, run_dir)
+        try:
+            wait_for_torque(emu, proc)
+            os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
+            stdout, stderr = proc.communicate(timeout=30)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.communicate()
+        time.sleep(0.05)
+        torque = emu.torque()
+        history = {i: s.torque_history for i, s in emu.servos.items()}
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "interrupted (SIGINT)" in stderr
+    assert last_line(stdout) == str(run_dir)
+    assert torque == {1: 0, 2: 0, 3: 0, 4: 0}
+    assert all(h[-2:] == [1, 0] for h in history.values()), history
+    log = read_log(run_dir / "logs" / "hardware.mcap")
+    assert not log.truncated and len(log["/state"]) >= 5
+    assert log.metadata["summary"]["stop_reason"] == "SIGINT"
+    assert (run_dir / "fig4_com.png").is_file()
+
+
+def test_a_killed_process_is_stopped_by_the_bus_watchdog(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    with ServoEmulator() as emu, OdometryPublisher() as pub:
+        proc = start(emu, pub, run_dir)
+        try:
+            wait_for_torque(emu, proc)
+            os.killpg(proc.pid, signal.SIGKILL)  # no chance to turn anything off
+            proc.communicate(timeout=30)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        time.sleep(0.3)  # watchdog: 100 ms
+        trips = [s.watchdog_trips for s in emu.servos.values()]
+        flags = [emu.register(i, "bus_watchdog") for i in (1, 2, 3, 4)]
+        torque = emu.torque()
+    assert trips == [1, 1, 1, 1] and flags == [-1, -1, -1, -1]
+    assert torque == {1: 0, 2: 0, 3: 0, 4: 0}
+
+
+@pytest.fixture(scope="module")
+def dry_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess, ServoEmulator]:
+    run_dir = tmp_path_factory.mktemp("dry") / "run"
+    with ServoEmulator() as emu, OdometryPublisher() as pub:
+        proc = slot("hardware", "--dry-run", f"hardware.port={emu.port}", f"odometry.endpoint={pub.endpoint}",
+                    "duration=1", f"hydra.run.dir={run_dir}", cwd=run_dir.parent)
+    return run_dir, proc, emu
+
+
+def test_dry_run_writes_nothing_to_the_servos(dry_run) -> None:
+    run_dir, proc, emu = dry_run
+    ok(proc)
+    assert last_line(proc.stdout) == str(run_dir)
+    assert emu.writes == []  # not a single register write reached any servo, Goal Position included
+    assert all(s.torque_history == [] for s in emu.servos.values())
+    assert emu.torque() == {1: 0, 2: 0, 3: 0, 4: 0}
+    assert "a live run writes" in proc.stderr  # it says what a live run would change
+    log = read_log(run_dir / "logs" / "hardware.mcap")
+    servos = log["/servos"]
+    assert len(servos) == 30 and not servos["sent"].any()
+    goals = servos[[f"goal.{i}" for i in range(4)]].to_numpy(float)
+    assert np.all((goals > 1479) & (goals <= 2844))  # what it would have sent, logged
+    assert log.metadata["run"]["dry_run"] == "true"
+
+
+def test_slot_figures_and_validate_work_on_a_hardware_log(dry_run, tmp_path: Path) -> None:
+    run_dir, _proc, _emu = dry_run
+    for f in ("fig4_com.png", "fig6_path.png", "metrics.json"):
+        (run_dir / f).unlink()
+    out = ok(slot("figures", run_dir, cwd=tmp_path))
+    assert last_line(out.stdout) == str(run_dir)
+    assert_png(run_dir / "fig4_com.png")
+    assert_png(run_dir / "fig6_path.png")
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["loop"]["cycles"] == 30 and metrics["stop_reason"] == "duration"
+    val = tmp_path / "val"
+    ok(slot("run", "experiment=validate", f"experiment.reference={run_dir}", f"experiment.candidate={run_dir}",
+            f"hydra.run.dir={val}", cwd=tmp_path))
+    rows = json.loads((val / "metrics.json").read_text())["rows"]
+    assert rows and all(r["rmse_m"] == 0 for r in rows)
+
+
+def test_missing_serial_port_is_one_line(tmp_path: Path) -> None:
+    assert_one_line_error(slot("hardware", "hardware.port=/dev/no-such-u2d2", f"hydra.run.dir={tmp_path / 'r'}",
+                               cwd=tmp_path), "/dev/no-such-u2d2")
+
+
+def test_a_servo_that_does_not_answer_is_one_line(tmp_path: Path) -> None:
+    with ServoEmulator([1, 2, 3]) as emu:
+        proc = slot("hardware", f"hardware.port={emu.port}", "hardware.comm_retries=0",
+                    f"hydra.run.dir={tmp_path / 'r'}", cwd=tmp_path)
+        writes = list(emu.writes)
+    assert_one_line_error(proc, "servo ID 4 (FR)", "does not answer ping")
+    assert writes == []  # checks first: nothing was written to the servos that did answer
+
+
+@pytest.mark.parametrize("args, words", [
+    (["hardware.watchdog_ms=90"], ["hardware.watchdog_ms", "20"]),
+    (["odometry=vicon"], ["unknown odometry 'vicon'", "replay, sim, zmq"]),
+    (["-m", "duration=1,2"], ["multirun"]),
+])
+def test_bad_arguments_are_one_line(args: list[str], words: list[str], tmp_path: Path) -> None:
+    assert_one_line_error(slot("hardware", *args, cwd=tmp_path), *words)
+
+
+def test_sigterm_stops_like_ctrl_c(tmp_path: Path) -> None:
+    """In process (a service manager's SIGTERM): exit 143, torque off, log closed."""
+    from test_hardware_loop import run
+
+    with ServoEmulator() as emu, OdometryPublisher() as pub:
+        timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGTERM))
+        timer.start()
+        result, _ = run(emu, pub, tmp_path, "duration=10")
+        timer.join()
+        torque = emu.torque()
+    assert result.exit_code == 143 and "SIGTERM" in result.message
+    assert torque == {1: 0, 2: 0, 3: 0, 4: 0}
+    assert read_log(result.log_path).metadata["summary"]["stop_reason"] == "SIGTERM"
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored after the run
