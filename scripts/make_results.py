@@ -16,7 +16,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SLOT = str(Path(sys.executable).parent / "slot")
-KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml")
+KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml")  # not logs
 
 RUNS = {
     # Paper Table I, Figs. 7-8 on the ideal plant with the default solver.
@@ -51,17 +51,30 @@ RUNS = {
     "simulate_cosserat_omni60": ["experiment=simulate", "plant=cosserat", "gait=omni60"],
 }
 
+# Benchmarks: `slot bench <component>`, measured in one process (run with nothing else on the machine).
+BENCHES = {
+    "bench_mpc": ["mpc"],
+    "bench_leg": ["leg"],
+}
+
 
 def main(names: list[str]) -> None:
     timing_path = ROOT / "results" / "timing.json"
     timing = json.loads(timing_path.read_text()) if timing_path.exists() else {}
-    for name in names or list(RUNS):
+    unknown = [n for n in names if n not in RUNS and n not in BENCHES]
+    if unknown:
+        raise SystemExit(f"error: unknown result {unknown[0]!r}: choose from {', '.join([*RUNS, *BENCHES])}")
+    for name in names or [*RUNS, *BENCHES]:
         run_dir = ROOT / "experiments" / "results" / name
         shutil.rmtree(run_dir, ignore_errors=True)
-        print(f"== {name}: slot run {' '.join(RUNS[name])}", flush=True)
         start = time.perf_counter()
-        subprocess.run([SLOT, "run", *RUNS[name], f"hydra.run.dir={run_dir}"], cwd=ROOT, check=True)
-        timing[name] = {"wall_s": round(time.perf_counter() - start, 1), "args": RUNS[name]}
+        if name in BENCHES:
+            print(f"== {name}: slot bench {' '.join(BENCHES[name])}", flush=True)
+            subprocess.run([SLOT, "bench", *BENCHES[name], "--out", str(run_dir)], cwd=ROOT, check=True)
+        else:
+            print(f"== {name}: slot run {' '.join(RUNS[name])}", flush=True)
+            subprocess.run([SLOT, "run", *RUNS[name], f"hydra.run.dir={run_dir}"], cwd=ROOT, check=True)
+        timing[name] = {"wall_s": round(time.perf_counter() - start, 1), "args": RUNS.get(name, BENCHES.get(name))}
         dest = ROOT / "results" / name
         shutil.rmtree(dest, ignore_errors=True)
         dest.mkdir(parents=True)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import shutil
 import time
 from pathlib import Path
 
@@ -37,7 +36,6 @@ PASSES = 2
 BASELINE = "scs"  # the paper's stack: CVXPY + SCS
 REFERENCE = "clarabel"  # objective agreement is reported against it
 CONF_SOLVER = Path(__file__).resolve().parents[2] / "conf" / "solver"
-RESULTS = Path(__file__).resolve().parents[2] / "results" / "bench_mpc"
 
 
 def record_problems(cfg: SlotConfig, scenario: str = SCENARIO, duration: float = DURATION_S) -> list[tuple]:
@@ -122,11 +120,7 @@ def bench_mpc(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
                    "load_average_1min_at_start": load}))
     _plot(merged, out_dir / "mpc_update_times.png", cfg.mpc.horizon)
     _write_table(rows, out_dir / "bench_mpc.md")
-    if RESULTS.parent.is_dir():
-        RESULTS.mkdir(exist_ok=True)
-        for f in ("mpc_update_times.png", "bench_mpc.md"):
-            shutil.copy2(out_dir / f, RESULTS / f)
-        _write_csv(rows, RESULTS / "bench_mpc.csv")
+    _write_csv(rows, out_dir / "bench_mpc.csv")  # `make results` copies these three into results/bench_mpc/
     return rows
 
 
