@@ -141,6 +141,18 @@ def _damping_reaction(vel, omega, mass, inertia, par, root, out):
 
 
 @njit(cache=True)
+def _finish_step(pos, tension, total_n, total_f, out):
+    """Report the step's tension and contact totals; flag a blown-up state (non-finite, or the
+    tip 100 m away) so the caller can stop with the step and the stability limit named."""
+    out[O_T] = tension
+    out[O_N] = total_n
+    out[O_F] = total_f
+    tip = pos[pos.shape[0] - 1]
+    if not (np.isfinite(tip[0]) and np.isfinite(tip[1]) and abs(tip[0]) < 100.0 and abs(tip[1]) < 100.0):
+        out[O_DIV] = 1.0
+
+
+@njit(cache=True)
 def _root_reaction(force, m_root, mass, par, out):
     # node 0 belongs to the torso: its own weight is not a leg load
     out[O_FX] = force[0, 0]
@@ -235,12 +247,7 @@ def symplectic_once(pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, 
     out[O_FZ] += c * rz
     out[O_M] += c * rm
     rotate_directors(cth, sth, theta, omega, h)
-    out[O_T] = tension
-    out[O_N] = total_n
-    out[O_F] = total_f
-    if not (np.isfinite(pos[n - 1, 0]) and np.isfinite(pos[n - 1, 1]) and abs(pos[n - 1, 0]) < 100.0
-            and abs(pos[n - 1, 1]) < 100.0):
-        out[O_DIV] = 1.0
+    _finish_step(pos, tension, total_n, total_f, out)
 
 
 @njit(cache=True)
@@ -424,12 +431,7 @@ def implicit_once(pos, vel, theta, omega, rest_pos, l0, voronoi, dtheta0, ea, ga
     if tension > 0.0:
         out[O_M] += tension_end * par[P_TOFF]
     _damping_reaction(vel, omega, mass, inertia, par, root, out)
-    out[O_T] = tension
-    out[O_N] = total_n
-    out[O_F] = total_f
-    if not (np.isfinite(pos[n - 1, 0]) and np.isfinite(pos[n - 1, 1]) and abs(pos[n - 1, 0]) < 100.0
-            and abs(pos[n - 1, 1]) < 100.0):
-        out[O_DIV] = 1.0
+    _finish_step(pos, tension, total_n, total_f, out)
 
 
 @njit(cache=True)

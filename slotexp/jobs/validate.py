@@ -42,7 +42,7 @@ def load_trajectory(spec: str) -> Trajectory:
 
 def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
     exp = cfg.experiment
-    reference = load_trajectory(exp.reference)
+    load_trajectory(exp.reference)  # fail fast: a bad reference is reported before any simulation
     if exp.candidate:
         candidate_spec = exp.candidate
     else:
