@@ -7,6 +7,7 @@ over tcp on 127.0.0.1. Runs are 1-2 s of wall-clock time each.
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -117,10 +118,9 @@ def test_corrupted_and_missing_replies_are_retried(tmp_path: Path) -> None:
             emu.inject("garbage", 1, instruction=INST_SYNC_READ)
             emu.inject("truncate", 1, servo_id=2, instruction=INST_SYNC_READ)
 
-        timer = threading.Timer(0.4, spoil)
-        timer.start()
+        waiter = _when_running(emu, spoil)
         result, _ = run(emu, pub, tmp_path, "duration=1.5")
-        timer.join()
+        waiter.join()
         spoiled = emu.replies_faulted
     assert result.exit_code == 0, result.message
     assert spoiled == 5
@@ -132,10 +132,9 @@ def test_corrupted_and_missing_replies_are_retried(tmp_path: Path) -> None:
 
 def test_persistent_bus_failure_stops_cleanly(tmp_path: Path) -> None:
     with ServoEmulator() as emu, OdometryPublisher() as pub:
-        timer = threading.Timer(0.5, lambda: emu.inject("drop", 10, servo_id=2, instruction=INST_SYNC_READ))
-        timer.start()
+        waiter = _when_running(emu, lambda: emu.inject("drop", 10, servo_id=2, instruction=INST_SYNC_READ))
         result, _ = run(emu, pub, tmp_path, "duration=3", "hardware.comm_retries=2")
-        timer.join()
+        waiter.join()
         torque = emu.torque()
     assert result.exit_code == EXIT_SAFETY_STOP
     assert result.outcome.stop_reason == "bus"
@@ -144,12 +143,28 @@ def test_persistent_bus_failure_stops_cleanly(tmp_path: Path) -> None:
     assert not read_log(result.log_path).truncated
 
 
+def _when_running(emu: ServoEmulator, action, timeout: float = 20.0) -> threading.Thread:
+    """Run ``action`` once every servo's torque is on (the loop is past start-up), not at a fixed
+    time: start-up (pings, checks, the MPC's warm-up solve) takes a machine-dependent while."""
+    def wait_then_act() -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if all(v == 1 for v in emu.torque().values()):
+                time.sleep(0.1)
+                action()
+                return
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=wait_then_act, daemon=True)
+    thread.start()
+    return thread
+
+
 def test_a_servo_hardware_error_stops_the_run(tmp_path: Path) -> None:
     with ServoEmulator() as emu, OdometryPublisher() as pub:
-        timer = threading.Timer(0.5, lambda: emu.set_hardware_error(3, 0x20))
-        timer.start()
+        waiter = _when_running(emu, lambda: emu.set_hardware_error(3, 0x20))
         result, _ = run(emu, pub, tmp_path, "duration=3", "hardware.error_check_every=3")
-        timer.join()
+        waiter.join()
         torque = emu.torque()
     assert result.exit_code == EXIT_SAFETY_STOP
     assert result.outcome.stop_reason == "hardware error"

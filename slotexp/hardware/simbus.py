@@ -42,6 +42,9 @@ class SimWorld:
     def __init__(self, cfg: SlotConfig, robot: RobotModel, smap: ServoMap, profile_velocity_rpm: float,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.plant: Plant = make_plant(cfg, robot, nominal_state(robot))
+        # Compile the plant's numba kernels now, on a throwaway copy: compiling inside the
+        # timed loop stalls it past odometry.max_age_s on a machine without a warm cache.
+        make_plant(cfg, robot, nominal_state(robot)).step(np.zeros((4, 3)), cfg.sim.dt, None, np.zeros(4))
         self.smap = smap
         self.actuation = cfg.robot.actuation
         self.clock = clock
