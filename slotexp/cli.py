@@ -271,7 +271,7 @@ def compose_config(overrides: list[str]) -> "SlotConfig":  # noqa: F821
 def bench(ctx: typer.Context,
           out: Path = typer.Option(None, "--out", help="Output directory (default experiments/bench/<timestamp>).")
           ) -> None:
-    """Benchmark components side by side in one process: slot bench [COMPONENT ...] [overrides].
+    """Benchmark components side by side in one process: slot bench mpc leg, plus any Hydra overrides.
 
     Writes bench.csv (component,variant,median_us,p99_us,ratio_vs_baseline) and
     bench.json, prints the table, and prints the output directory last.
