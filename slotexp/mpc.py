@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from numba import njit
@@ -221,16 +221,6 @@ def make_mpc(cfg_mpc: MpcConfig, cfg_solver: SolverConfig, mass: float, inertia_
     from .backends import backend_class
 
     return backend_class(cfg_solver.name)(cfg_mpc, cfg_solver, mass, inertia_body, gravity)
-
-
-def __getattr__(name: str) -> Any:
-    # ``ConvexMpc`` is the CVXPY formulation under its original name (imported lazily: the
-    # backends import this module).
-    if name == "ConvexMpc":
-        from .backends.cvxpy_qp import CvxpyMpc
-
-        return CvxpyMpc
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def constraint_violations(forces: np.ndarray, plan: ContactPlan, weight: float, band: float) -> dict[str, float]:

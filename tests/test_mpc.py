@@ -5,7 +5,7 @@ import pytest
 
 from slotexp.controller import Controller
 from slotexp.gait import GaitMatrix, contact_plan
-from slotexp.mpc import ConvexMpc
+from slotexp.backends.cvxpy_qp import CvxpyMpc as ConvexMpc
 from slotexp.plant import nominal_state
 from slotexp.reference import reference
 from slotexp.robot import build_robot
@@ -15,6 +15,9 @@ TOL = 1e-4  # N
 
 
 def _problem(*overrides, seed=0, offset_scale=1.0):
+    # these tests exercise the CVXPY formulation: Clarabel unless a test picks a CVXPY solver
+    if not any(o.startswith("solver=") for o in overrides):
+        overrides = ("solver=clarabel", *overrides)
     cfg = load(*overrides)
     robot = build_robot(cfg.robot)
     rng = np.random.default_rng(seed)

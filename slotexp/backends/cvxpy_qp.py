@@ -7,7 +7,6 @@ and the reference the direct backends are tested against.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 import warnings
 
@@ -56,11 +55,7 @@ def solver_options(solver: SolverConfig) -> tuple[str, dict]:
 
 
 class CvxpyMpc:
-    """The paper's QP, built once; :meth:`solve` only sets parameter values.
-
-    Given a non-CVXPY backend's name (``osqp_direct``, ``daqp``) it solves with
-    Clarabel, so the CVXPY formulation can always be built and inspected.
-    """
+    """The paper's QP, built once; :meth:`solve` only sets parameter values."""
 
     def __init__(self, cfg: MpcConfig, solver: SolverConfig, mass: float, inertia_body: np.ndarray,
                  gravity: float) -> None:
@@ -74,8 +69,10 @@ class CvxpyMpc:
         self.q = np.asarray(cfg.q_diag, dtype=float)
         self.weights = objective_weights(cfg)
         h = cfg.horizon
-        name = solver.name if solver.name in CVXPY_BACKENDS else "clarabel"
-        self._solver, self._options = solver_options(_named(solver, name))
+        if solver.name not in CVXPY_BACKENDS:
+            raise ValueError(f"CvxpyMpc solves through CVXPY only ({', '.join(CVXPY_BACKENDS)}), "
+                             f"not {solver.name!r}: use make_mpc for it")
+        self._solver, self._options = solver_options(solver)
 
         self.x0 = cp.Parameter(N_STATE, name="x0")
         self.x_ref = cp.Parameter((N_STATE, h), name="x_ref")
@@ -144,9 +141,3 @@ class CvxpyMpc:
                                         np.ascontiguousarray(x_ref, dtype=float), model, self.weights, status,
                                         iterations, solve_time, start, self.solver_cfg.time_limit_s)
         return failed_solution(self.cfg.horizon, status, iterations, solve_time, start)
-
-
-def _named(solver: SolverConfig, name: str) -> SolverConfig:
-    if solver.name == name:
-        return solver
-    return dataclasses.replace(solver, name=name)
