@@ -295,11 +295,11 @@ def bench(ctx: typer.Context,
         fail(f"unknown bench component {unknown[0]!r}: choose from {', '.join(sorted(bench_pkg.COMPONENTS))}")
     if not bench_pkg.COMPONENTS:
         fail("no benchmark components are available in this version")
-    cfg = compose_config(overrides)
+    configs = {name: compose_config(bench_pkg.OVERRIDES[name] + overrides) for name in names}
     out_dir = out or Path("experiments") / "bench" / _dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     rows = []
     for name in names:
-        rows += bench_pkg.COMPONENTS[name](cfg, out_dir)
+        rows += bench_pkg.COMPONENTS[name](configs[name], out_dir)
     bench_pkg.write(rows, out_dir)
     table = Table(*bench_pkg.CSV_COLUMNS)
     for r in rows:

@@ -1,7 +1,9 @@
 """Benchmarks (`slot bench`): each component measures variants side by side in one process.
 
 A component is a function ``(cfg, out_dir) -> list[BenchRow]`` registered in
-:data:`COMPONENTS` by name. ``slot bench`` runs the selected components and writes
+:data:`COMPONENTS` by name, with the Hydra overrides its config needs (e.g.
+``plant=cosserat``); the CLI composes each component's config from those, then the
+user's overrides. ``slot bench`` runs the selected components and writes
 ``bench.csv`` (columns ``component,variant,median_us,p99_us,ratio_vs_baseline``)
 plus ``bench.json`` with each row's extra fields, into its output directory.
 Speed goals are checked here and reported with numbers, never in timed tests.
@@ -32,11 +34,13 @@ class BenchRow:
 
 Component = Callable[[SlotConfig, Path], list[BenchRow]]
 COMPONENTS: dict[str, Component] = {}
+OVERRIDES: dict[str, list[str]] = {}
 
 
-def register(name: str) -> Callable[[Component], Component]:
+def register(name: str, overrides: list[str] | None = None) -> Callable[[Component], Component]:
     def wrap(fn: Component) -> Component:
         COMPONENTS[name] = fn
+        OVERRIDES[name] = list(overrides or [])
         return fn
     return wrap
 
