@@ -133,7 +133,7 @@ def stuff(prefix: bytes, body: bytes) -> bytes:
         out.append(b)
         if b == 0xFD and out[-2] == 0xFF and out[-3] == 0xFF and len(out) - len(prefix) >= 1:
             out.append(0xFD)
-    return bytes(out[len(prefix):])
+    return bytes(out[len(prefix) :])
 
 
 def unstuff(raw: bytes, start: int, end: int) -> bytes:
@@ -190,18 +190,18 @@ class Servo:
 
     def __post_init__(self) -> None:
         for addr, size, _acc, value, _signed in CONTROL_TABLE.values():
-            self.table[addr:addr + size] = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
+            self.table[addr : addr + size] = (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
         self.set("model_number", self.model)
         self.set("id", self.servo_id)
         self.last_seen = time.monotonic()
 
     def get(self, name: str) -> int:
         addr, size, _acc, _init, signed = CONTROL_TABLE[name]
-        return int.from_bytes(self.table[addr:addr + size], "little", signed=signed)
+        return int.from_bytes(self.table[addr : addr + size], "little", signed=signed)
 
     def set(self, name: str, value: int) -> None:
         addr, size, _acc, _init, _signed = CONTROL_TABLE[name]
-        self.table[addr:addr + size] = (int(value) & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
+        self.table[addr : addr + size] = (int(value) & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
         if name == "torque_enable":
             self.torque_history.append(int(value))
 
@@ -213,8 +213,13 @@ class Servo:
 class ServoEmulator:
     """Emulated XL430 servos behind a pty; use as a context manager. ``port`` is the path to give the SDK."""
 
-    def __init__(self, ids: list[int] = (1, 2, 3, 4), models: dict[int, int] | None = None,
-                 initial_position: dict[int, int] | None = None, step_s: float = 0.001) -> None:
+    def __init__(
+        self,
+        ids: list[int] = (1, 2, 3, 4),
+        models: dict[int, int] | None = None,
+        initial_position: dict[int, int] | None = None,
+        step_s: float = 0.001,
+    ) -> None:
         models = models or {}
         self.servos: dict[int, Servo] = {i: Servo(i, model=models.get(i, XL430_MODEL)) for i in ids}
         for i, pos in (initial_position or {}).items():
@@ -239,7 +244,7 @@ class ServoEmulator:
         self._last_motion = time.monotonic()
 
     # ------------------------------------------------------------------ lifecycle
-    def start(self) -> "ServoEmulator":
+    def start(self) -> ServoEmulator:
         self._thread.start()
         return self
 
@@ -253,7 +258,7 @@ class ServoEmulator:
             except OSError:
                 pass
 
-    def __enter__(self) -> "ServoEmulator":
+    def __enter__(self) -> ServoEmulator:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
@@ -276,8 +281,7 @@ class ServoEmulator:
             if bits:
                 s.set("torque_enable", 0)
 
-    def inject(self, kind: str, count: int = 1, *, servo_id: int | None = None,
-               instruction: int | None = None) -> None:
+    def inject(self, kind: str, count: int = 1, *, servo_id: int | None = None, instruction: int | None = None) -> None:
         """Spoil the next ``count`` status packets (optionally only for one ID / instruction)."""
         if kind not in ("drop", "corrupt", "garbage", "truncate"):
             raise ValueError(kind)
@@ -287,8 +291,11 @@ class ServoEmulator:
     def goal_writes(self, servo_id: int | None = None) -> list[WriteRecord]:
         """Writes that touched Goal Position (116..119)."""
         with self.lock:
-            return [w for w in self.writes if (servo_id is None or w.servo_id == servo_id)
-                    and w.address <= 119 and w.address + len(w.data) > 116]
+            return [
+                w
+                for w in self.writes
+                if (servo_id is None or w.servo_id == servo_id) and w.address <= 119 and w.address + len(w.data) > 116
+            ]
 
     def torque(self) -> dict[int, int]:
         with self.lock:
@@ -332,7 +339,7 @@ class ServoEmulator:
         while True:
             start = buf.find(HEADER)
             if start < 0:
-                del buf[:max(0, len(buf) - 3)]
+                del buf[: max(0, len(buf) - 3)]
                 return
             if start:
                 del buf[:start]
@@ -414,8 +421,11 @@ class ServoEmulator:
                 if reply:
                     self._status(s, inst, err, data)
             elif inst == INST_WRITE:
-                err = ERR_DATA_LENGTH if len(params) < 3 else \
-                    self._write(s, params[0] | params[1] << 8, params[2:], "write")
+                err = (
+                    ERR_DATA_LENGTH
+                    if len(params) < 3
+                    else self._write(s, params[0] | params[1] << 8, params[2:], "write")
+                )
                 if reply:
                     self._status(s, inst, err)
             elif inst == INST_REBOOT:
@@ -430,12 +440,12 @@ class ServoEmulator:
     def _read(self, s: Servo, addr: int, n: int) -> tuple[int, bytes]:
         if n == 0 or addr + n > TABLE_SIZE:
             return ERR_DATA_RANGE, b""
-        return 0, bytes(s.table[addr:addr + n])
+        return 0, bytes(s.table[addr : addr + n])
 
     def _write(self, s: Servo, addr: int, data: bytes, how: str) -> int:
         err = self._check_write(s, addr, data)
         if err == 0:
-            s.table[addr:addr + len(data)] = data
+            s.table[addr : addr + len(data)] = data
             if addr <= 64 < addr + len(data):
                 s.torque_history.append(data[64 - addr])
                 if data[64 - addr] == 1:
@@ -464,7 +474,7 @@ class ServoEmulator:
 
         def val(name: str) -> int:
             ad, size, _acc, _init, signed = CONTROL_TABLE[name]
-            return int.from_bytes(new[ad:ad + size], "little", signed=signed)
+            return int.from_bytes(new[ad : ad + size], "little", signed=signed)
 
         if addr <= 64 < end:
             if val("torque_enable") not in (0, 1):
@@ -498,7 +508,7 @@ class ServoEmulator:
         rest = params[4:]
         ids = []
         for k in range(0, len(rest) - n, n + 1):
-            i, data = rest[k], rest[k + 1:k + 1 + n]
+            i, data = rest[k], rest[k + 1 : k + 1 + n]
             ids.append(i)
             if i in self.servos and len(data) == n:
                 self._write(self.servos[i], addr, data, "sync_write")
@@ -536,11 +546,17 @@ class OdometryPublisher:
 
     ``pose(t)`` gives (position, quaternion xyzw, linear velocity, angular velocity in the body
     frame) at publisher time ``t``; by default the robot stands still at ``height``. ``stop_after``
-    (s) makes it fall silent, as a crashed estimator would.
+    (s) or ``silence()`` makes it fall silent, as a crashed estimator would.
     """
 
-    def __init__(self, rate_hz: float = 100.0, height: float = 0.04, stop_after: float | None = None,
-                 pose=None, endpoint: str = "tcp://127.0.0.1:*") -> None:
+    def __init__(
+        self,
+        rate_hz: float = 100.0,
+        height: float = 0.04,
+        stop_after: float | None = None,
+        pose=None,
+        endpoint: str = "tcp://127.0.0.1:*",
+    ) -> None:
         import zmq
 
         self.rate_hz = rate_hz
@@ -553,7 +569,12 @@ class OdometryPublisher:
         self.endpoint = self._sock.getsockopt(zmq.LAST_ENDPOINT).decode()
         self.sent = 0
         self._stop = threading.Event()
+        self._silent = threading.Event()
         self._thread = threading.Thread(target=self._run, name="odometry-publisher", daemon=True)
+
+    def silence(self) -> None:
+        """Stop publishing from now on (the socket stays bound)."""
+        self._silent.set()
 
     def _run(self) -> None:
         import json
@@ -563,15 +584,24 @@ class OdometryPublisher:
         k = 0
         while not self._stop.is_set():
             t = time.monotonic() - t0
-            if self.stop_after is None or t < self.stop_after:
+            if not self._silent.is_set() and (self.stop_after is None or t < self.stop_after):
                 p, q, v, w = self.pose(t)
-                self._sock.send(json.dumps({"t": t, "position": list(p), "orientation": list(q),
-                                            "linear_velocity": list(v), "angular_velocity": list(w)}).encode())
+                self._sock.send(
+                    json.dumps(
+                        {
+                            "t": t,
+                            "position": list(p),
+                            "orientation": list(q),
+                            "linear_velocity": list(v),
+                            "angular_velocity": list(w),
+                        }
+                    ).encode()
+                )
                 self.sent += 1
             k += 1
             time.sleep(max(0.0, t0 + k * period - time.monotonic()))
 
-    def __enter__(self) -> "OdometryPublisher":
+    def __enter__(self) -> OdometryPublisher:
         self._thread.start()
         return self
 

@@ -12,33 +12,30 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 
-from helpers import CONF
-from servo_emulator import INST_SYNC_READ, OdometryPublisher, ServoEmulator
-from slotexp.config import register_schemas
 from slotexp.errors import UserError
-from slotexp.hardware.config import HardwareSlotConfig, load_hardware_config
 from slotexp.hardware.mapping import ServoMap
 from slotexp.hardware.run import EXIT_SAFETY_STOP, run_hardware
 from slotexp.record import read_log
 from slotexp.runlog import load_run
+from tests.helpers import load_hardware, run_on_emulator
+from tests.servo_emulator import INST_SYNC_READ, OdometryPublisher, ServoEmulator
 
-SIM_TOPICS = {"/state", "/state_measured", "/reference", "/cost", "/forces", "/contact", "/tendon", "/mpc/stats",
-              "/mpc/plan", "/constraints", "/markers", "/torso/pose", "/tf"}
-
-
-def hw(*overrides: str) -> HardwareSlotConfig:
-    register_schemas()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return load_hardware_config(compose("hardware_config", overrides=list(overrides)))
-
-
-def run(emu: ServoEmulator, pub: OdometryPublisher | None, tmp: Path, *overrides: str):
-    notes: list[str] = []
-    args = [f"hardware.port={emu.port}"] + ([f"odometry.endpoint={pub.endpoint}"] if pub else []) + list(overrides)
-    result = run_hardware(hw(*args), tmp, "{}", notes.append)
-    return result, notes
+SIM_TOPICS = {
+    "/state",
+    "/state_measured",
+    "/reference",
+    "/cost",
+    "/forces",
+    "/contact",
+    "/tendon",
+    "/mpc/stats",
+    "/mpc/plan",
+    "/constraints",
+    "/markers",
+    "/torso/pose",
+    "/tf",
+}
 
 
 def goal_ticks(log) -> np.ndarray:
@@ -47,7 +44,7 @@ def goal_ticks(log) -> np.ndarray:
 
 def test_full_loop_commands_the_mapped_tendon_angles(tmp_path: Path) -> None:
     with ServoEmulator() as emu, OdometryPublisher() as pub:
-        result, notes = run(emu, pub, tmp_path, "duration=2")
+        result, notes = run_on_emulator(emu, pub, tmp_path, "duration=2")
         torque_history = {i: list(s.torque_history) for i, s in emu.servos.items()}
         watchdog = {i: emu.register(i, "bus_watchdog") for i in emu.servos}
         final_goal = [emu.register(i, "goal_position") for i in (1, 2, 3, 4)]
@@ -63,7 +60,7 @@ def test_full_loop_commands_the_mapped_tendon_angles(tmp_path: Path) -> None:
     assert np.allclose(data.x, data.x_meas)
     assert np.allclose(data.x[:, 5], 0.04)
     # goals = documented mapping of the controller's tendon angles, and that is what reached the servos
-    cfg = hw()
+    cfg = load_hardware()
     smap = ServoMap.from_config(cfg.hardware, cfg.robot.leg.tendon_max_deg)
     tendon = log["/tendon"][[f"command_deg.{i}" for i in range(4)]].to_numpy(float)
     expected = np.rint((130.0 + np.clip(tendon, 0, 116.28)) * 4096 / 360)
@@ -82,9 +79,11 @@ def test_full_loop_commands_the_mapped_tendon_angles(tmp_path: Path) -> None:
 
 def test_commands_beyond_the_servo_limits_are_clamped_and_logged(tmp_path: Path) -> None:
     with ServoEmulator() as emu, OdometryPublisher() as pub:
-        result, notes = run(emu, pub, tmp_path, "duration=1", "hardware.max_position_deg=[200,200,250,250]")
-        sent = {i: [int.from_bytes(w.data, "little") for w in emu.goal_writes(i) if w.instruction == "sync_write"]
-                for i in (1, 2, 3, 4)}
+        result, notes = run_on_emulator(emu, pub, tmp_path, "duration=1", "hardware.max_position_deg=[200,200,250,250]")
+        sent = {
+            i: [int.from_bytes(w.data, "little") for w in emu.goal_writes(i) if w.instruction == "sync_write"]
+            for i in (1, 2, 3, 4)
+        }
         limits = [emu.register(i, "max_position_limit") for i in (1, 2, 3, 4)]
     assert result.exit_code == 0, result.message
     cap = round(200 * 4096 / 360)
@@ -98,8 +97,10 @@ def test_commands_beyond_the_servo_limits_are_clamped_and_logged(tmp_path: Path)
 
 
 def test_stale_odometry_stops_the_loop_with_torque_off(tmp_path: Path) -> None:
-    with ServoEmulator() as emu, OdometryPublisher(stop_after=0.6) as pub:
-        result, _ = run(emu, pub, tmp_path, "duration=5", "odometry.max_age_s=0.15")
+    with ServoEmulator() as emu, OdometryPublisher() as pub:
+        waiter = _when_running(emu, pub.silence, delay=0.4)  # the estimator dies once the loop runs
+        result, _ = run_on_emulator(emu, pub, tmp_path, "duration=5", "odometry.max_age_s=0.15")
+        waiter.join()
         torque = emu.torque()
     assert result.exit_code == EXIT_SAFETY_STOP
     assert result.outcome.stop_reason == "stale odometry"
@@ -112,6 +113,7 @@ def test_stale_odometry_stops_the_loop_with_torque_off(tmp_path: Path) -> None:
 
 def test_corrupted_and_missing_replies_are_retried(tmp_path: Path) -> None:
     with ServoEmulator() as emu, OdometryPublisher() as pub:
+
         def spoil() -> None:
             emu.inject("corrupt", 1, instruction=INST_SYNC_READ)
             emu.inject("drop", 2, servo_id=3, instruction=INST_SYNC_READ)
@@ -119,7 +121,7 @@ def test_corrupted_and_missing_replies_are_retried(tmp_path: Path) -> None:
             emu.inject("truncate", 1, servo_id=2, instruction=INST_SYNC_READ)
 
         waiter = _when_running(emu, spoil)
-        result, _ = run(emu, pub, tmp_path, "duration=1.5")
+        result, _ = run_on_emulator(emu, pub, tmp_path, "duration=1.5")
         waiter.join()
         spoiled = emu.replies_faulted
     assert result.exit_code == 0, result.message
@@ -133,7 +135,7 @@ def test_corrupted_and_missing_replies_are_retried(tmp_path: Path) -> None:
 def test_persistent_bus_failure_stops_cleanly(tmp_path: Path) -> None:
     with ServoEmulator() as emu, OdometryPublisher() as pub:
         waiter = _when_running(emu, lambda: emu.inject("drop", 10, servo_id=2, instruction=INST_SYNC_READ))
-        result, _ = run(emu, pub, tmp_path, "duration=3", "hardware.comm_retries=2")
+        result, _ = run_on_emulator(emu, pub, tmp_path, "duration=3", "hardware.comm_retries=2")
         waiter.join()
         torque = emu.torque()
     assert result.exit_code == EXIT_SAFETY_STOP
@@ -143,14 +145,15 @@ def test_persistent_bus_failure_stops_cleanly(tmp_path: Path) -> None:
     assert not read_log(result.log_path).truncated
 
 
-def _when_running(emu: ServoEmulator, action, timeout: float = 20.0) -> threading.Thread:
+def _when_running(emu: ServoEmulator, action, timeout: float = 20.0, delay: float = 0.1) -> threading.Thread:
     """Run ``action`` once every servo's torque is on (the loop is past start-up), not at a fixed
     time: start-up (pings, checks, the MPC's warm-up solve) takes a machine-dependent while."""
+
     def wait_then_act() -> None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if all(v == 1 for v in emu.torque().values()):
-                time.sleep(0.1)
+                time.sleep(delay)
                 action()
                 return
             time.sleep(0.01)
@@ -163,7 +166,7 @@ def _when_running(emu: ServoEmulator, action, timeout: float = 20.0) -> threadin
 def test_a_servo_hardware_error_stops_the_run(tmp_path: Path) -> None:
     with ServoEmulator() as emu, OdometryPublisher() as pub:
         waiter = _when_running(emu, lambda: emu.set_hardware_error(3, 0x20))
-        result, _ = run(emu, pub, tmp_path, "duration=3", "hardware.error_check_every=3")
+        result, _ = run_on_emulator(emu, pub, tmp_path, "duration=3", "hardware.error_check_every=3")
         waiter.join()
         torque = emu.torque()
     assert result.exit_code == EXIT_SAFETY_STOP
@@ -174,7 +177,7 @@ def test_a_servo_hardware_error_stops_the_run(tmp_path: Path) -> None:
 
 def test_hil_runs_the_same_loop_on_the_simulator_and_replay_feeds_it_back(tmp_path: Path) -> None:
     hil = tmp_path / "hil"
-    result = run_hardware(hw("odometry=sim", "duration=1"), hil, "{}")
+    result = run_hardware(load_hardware("odometry=sim", "duration=1", "robot.servo.profile_velocity_rpm=40"), hil, "{}")
     assert result.exit_code == 0, result.message
     log = read_log(result.log_path)
     assert log.metadata["run"]["bus"] == "simulated" and log.metadata["run"]["plant"] == "ideal"
@@ -189,7 +192,9 @@ def test_hil_runs_the_same_loop_on_the_simulator_and_replay_feeds_it_back(tmp_pa
     assert np.all(np.abs(np.diff(present, axis=0)) <= 40 / 60 * 4096 * np.diff(read_at)[:, None] + 2)
     # replay that run's states as odometry into the emulated servos; the run ends with the log
     with ServoEmulator() as emu:
-        replay, _ = run(emu, None, tmp_path / "replay", "odometry=replay", f"odometry.path={hil}", "duration=5")
+        replay, _ = run_on_emulator(
+            emu, None, tmp_path / "replay", "odometry=replay", f"odometry.path={hil}", "duration=5"
+        )
     assert replay.exit_code == 0, replay.message
     assert replay.outcome.stop_reason == "replay finished"
     states = read_log(replay.log_path)["/state"]
@@ -198,19 +203,30 @@ def test_hil_runs_the_same_loop_on_the_simulator_and_replay_feeds_it_back(tmp_pa
     assert np.abs(replayed[:, None] - z[None, :]).min(axis=1).max() < 1e-12  # exactly the logged states
 
 
-@pytest.mark.parametrize("setup, words", [
-    ({"ids": [1, 2, 3]}, ["servo ID 4 (FR)", "does not answer ping", "hardware.ids"]),
-    ({"models": {2: 1020}}, ["servo ID 2 (RL)", "model number 1020", "1060"]),
-    ({"error": (3, 0x04)}, ["servo ID 3 (RR)", "hardware error 0x04 (overheating)"]),
-    ({"no_odometry": True}, ["no odometry from tcp://127.0.0.1:1 within 0.3 s", "startup_timeout_s"]),
-])
+@pytest.mark.parametrize(
+    "setup, words",
+    [
+        ({"ids": [1, 2, 3]}, ["servo ID 4 (FR)", "does not answer ping", "hardware.ids"]),
+        ({"models": {2: 1020}}, ["servo ID 2 (RL)", "model number 1020", "1060"]),
+        ({"error": (3, 0x04)}, ["servo ID 3 (RR)", "hardware error 0x04 (overheating)"]),
+        ({"no_odometry": True}, ["no odometry from tcp://127.0.0.1:1 within 0.3 s", "startup_timeout_s"]),
+    ],
+)
 def test_start_up_problems_are_user_errors_before_any_write(setup: dict, words: list[str], tmp_path: Path) -> None:
     with ServoEmulator(setup.get("ids", [1, 2, 3, 4]), models=setup.get("models")) as emu:
         if "error" in setup:
             emu.set_hardware_error(*setup["error"])
         with pytest.raises(UserError) as err:
-            run_hardware(hw(f"hardware.port={emu.port}", "hardware.comm_retries=0", "odometry.startup_timeout_s=0.3",
-                            "odometry.endpoint=tcp://127.0.0.1:1"), tmp_path, "{}")
+            run_hardware(
+                load_hardware(
+                    f"hardware.port={emu.port}",
+                    "hardware.comm_retries=0",
+                    "odometry.startup_timeout_s=0.3",
+                    "odometry.endpoint=tcp://127.0.0.1:1",
+                ),
+                tmp_path,
+                "{}",
+            )
         writes = list(emu.writes)
     text = str(err.value)
     assert "\n" not in text
