@@ -1,7 +1,37 @@
-"""Errors the user can fix; the CLI prints them as one line and exits non-zero."""
+"""Errors the user can fix: one family, so the CLI catches :class:`UserError` alone.
+
+Everything a user can cause (a config value, a path, a file's content, a step
+too large for the integrator) derives from :class:`UserError`; its ``str()`` is
+one line that says what to change. The CLI prints it as ``error: ...`` and exits
+with status 2. Anything else is a bug and keeps its traceback. The concrete
+classes also derive from the builtin that describes them, so library callers
+can keep catching ``ValueError``.
+"""
 
 from __future__ import annotations
+
+__all__ = ["UserError", "ConfigError", "LogReadError", "TrajectoryError", "DivergenceError"]
 
 
 class UserError(Exception):
     """Bad input that is the user's to fix (a path, a file's content, a combination of options)."""
+
+    def __init__(self, message: str = "") -> None:
+        # one line, whatever the message was built from, so the CLI can print it as it is
+        super().__init__(" ".join(str(message).split()))
+
+
+class ConfigError(UserError, ValueError):
+    """A configuration value the user must change."""
+
+
+class LogReadError(UserError, ValueError):
+    """A path that cannot be read as an MCAP log at all."""
+
+
+class TrajectoryError(UserError, ValueError):
+    """Marker tracks or an alignment that cannot be compared (bad CSV, times, markers)."""
+
+
+class DivergenceError(UserError, RuntimeError):
+    """A simulation blew up; the message names ``sim.dt`` and the stability limit."""

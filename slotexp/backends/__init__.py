@@ -1,50 +1,35 @@
-"""QP backends for the MPC, one interface (:class:`slotexp.mpc.Mpc`), selected by ``solver.name``.
+"""QP backends for the MPC: one registry (``solver=<name>``), one base class, one module per backend.
 
 - ``clarabel``, ``scs``, ``osqp``: the sparse QP written once in CVXPY with DPP
-  parameters (``cvxpy_qp``); SCS is the paper's stack.
+  parameters (:mod:`._cvxpy`); each backend is a thin subclass that names its
+  solver and maps the shared settings to its options. SCS is the paper's stack.
 - ``osqp_direct``: the same sparse QP handed to OSQP directly, its matrices built
-  once and only their values updated in place (``osqp_direct``).
+  once and only their values updated in place.
 - ``daqp``: states eliminated, forces that must be zero removed, and the dense
-  QP solved by the DAQP active-set solver, warm-started (``condensed``).
+  QP solved by the DAQP active-set solver, warm-started.
 
-Every backend takes the same :class:`~slotexp.config.SolverConfig` settings and
-returns :class:`~slotexp.mpc.MpcSolution`; the modules are imported only when used.
+Every backend derives from :class:`._base.MpcBackend`, takes the same
+:class:`~slotexp.config.SolverConfig` settings and returns
+:class:`~slotexp.mpc.MpcSolution`. A new backend is one module here, named after
+it, whose class is decorated with ``@BACKENDS.register()``, plus its
+``conf/solver/<name>.yaml``; its module is imported only when it is used.
 """
 
 from __future__ import annotations
 
-_PINNED: list = []
+import numpy as np
 
-CVXPY_BACKENDS = ("clarabel", "scs", "osqp")
-DIRECT_BACKENDS = ("osqp_direct", "daqp")
-BACKENDS = CVXPY_BACKENDS + DIRECT_BACKENDS
+from ..config import MpcConfig, SolverConfig
+from ..registry import Registry
+
+BACKENDS: Registry[type] = Registry(__name__, "solver")
 
 
 def backend_class(name: str) -> type:
     """The class that implements backend ``name``."""
-    if name in CVXPY_BACKENDS:
-        from .cvxpy_qp import CvxpyMpc
-
-        return CvxpyMpc
-    if name == "osqp_direct":
-        from .osqp_direct import OsqpMpc
-
-        return OsqpMpc
-    if name == "daqp":
-        from .condensed import CondensedMpc
-
-        return CondensedMpc
-    raise ValueError(f"unknown solver {name!r}: choose one of {', '.join(BACKENDS)}")
+    return BACKENDS.get(name)
 
 
-def single_threaded_blas() -> None:
-    """Limit BLAS to one thread for this process (once).
-
-    The MPC's matrices are small (at most 180 x 315): BLAS threads only add
-    hand-off latency and jitter (measured p99 4.4 ms against 0.6 ms single-threaded
-    for the condensed backend), and the scenario processes already use every core.
-    """
-    if not _PINNED:
-        from threadpoolctl import threadpool_limits
-
-        _PINNED.append(threadpool_limits(limits=1, user_api="blas"))
+def make_mpc(cfg_mpc: MpcConfig, cfg_solver: SolverConfig, mass: float, inertia_body: np.ndarray, gravity: float):
+    """The backend ``cfg_solver.name`` selects, built once for this robot and horizon."""
+    return backend_class(cfg_solver.name)(cfg_mpc, cfg_solver, mass, inertia_body, gravity)

@@ -8,8 +8,8 @@ fraction of a millisecond. ``cache=True`` compiles once per machine.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from ..jit import njit
 from ..mpc import _discretize, _model, _rollout
 
 INF = 1.0e30  # DAQP's infinity
@@ -128,9 +128,23 @@ def structure(mask: np.ndarray, wrench: np.ndarray):
 
 
 @njit(cache=True)
-def condense(a_c: np.ndarray, b_d: np.ndarray, g_d: np.ndarray, x0: np.ndarray, x_ref: np.ndarray, q: np.ndarray,
-             rho: float, period: float, basis: np.ndarray, da: np.ndarray, pid: np.ndarray, a_off: np.ndarray,
-             c0: np.ndarray, c1: np.ndarray, c2: np.ndarray):
+def condense(
+    a_c: np.ndarray,
+    b_d: np.ndarray,
+    g_d: np.ndarray,
+    x0: np.ndarray,
+    x_ref: np.ndarray,
+    q: np.ndarray,
+    rho: float,
+    period: float,
+    basis: np.ndarray,
+    da: np.ndarray,
+    pid: np.ndarray,
+    a_off: np.ndarray,
+    c0: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+):
     """Hessian H (na, na) and gradient f of the QP in the wrench coordinates a (states eliminated).
 
     0.5 a'Ha + f'a is the objective up to a constant (and a factor 2); the internal
@@ -184,13 +198,14 @@ def condense(a_c: np.ndarray, b_d: np.ndarray, g_d: np.ndarray, x0: np.ndarray, 
         s1 = s1 + s0
         s0 = s0 + werr[j]
         p, d, o = pid[j], da[pid[j]], a_off[j]
-        grad[o:o + d] = (bt[p].T @ s0 + ct[p].T @ s1)[:d]
+        grad[o : o + d] = (bt[p].T @ s0 + ct[p].T @ s1)[:d]
     return hess, grad
 
 
 @njit(cache=True)
-def row_layout(mask: np.ndarray, mu: np.ndarray, fz_min: np.ndarray, fz_max: np.ndarray, weight: float,
-               band: float, rows: int):
+def row_layout(
+    mask: np.ndarray, mu: np.ndarray, fz_min: np.ndarray, fz_max: np.ndarray, weight: float, band: float, rows: int
+):
     """Every constraint row: bounds, DAQP sense, identity, and the force terms it combines.
 
     Row r is ``sum_j coef[r, j] * u[step[r], comp[r, j]]`` (up to four terms) within
@@ -240,9 +255,19 @@ def row_layout(mask: np.ndarray, mu: np.ndarray, fz_min: np.ndarray, fz_max: np.
 
 
 @njit(cache=True)
-def solver_rows(chosen: np.ndarray, step: np.ndarray, comp: np.ndarray, coef: np.ndarray, chol: np.ndarray,
-                basis: np.ndarray, da: np.ndarray, db: np.ndarray, pid: np.ndarray, a_off: np.ndarray,
-                b_off: np.ndarray) -> np.ndarray:
+def solver_rows(
+    chosen: np.ndarray,
+    step: np.ndarray,
+    comp: np.ndarray,
+    coef: np.ndarray,
+    chol: np.ndarray,
+    basis: np.ndarray,
+    da: np.ndarray,
+    db: np.ndarray,
+    pid: np.ndarray,
+    a_off: np.ndarray,
+    b_off: np.ndarray,
+) -> np.ndarray:
     """The chosen rows in the solver's variables (z = L' a, b): a-part by forward substitution with L.
 
     A row g'a + h'b becomes (L^-1 g)'z + h'b. g is non-zero only in its step's
@@ -299,9 +324,25 @@ def backward(chol: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def build(x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_inv: np.ndarray, gravity: float,
-          period: float, x_ref: np.ndarray, mu: np.ndarray, fz_min: np.ndarray, fz_max: np.ndarray, q: np.ndarray,
-          rho: float, c0: np.ndarray, c1: np.ndarray, c2: np.ndarray, weight: float, band: float):
+def build(
+    x: np.ndarray,
+    lever_arms: np.ndarray,
+    mass: float,
+    inertia_inv: np.ndarray,
+    gravity: float,
+    period: float,
+    x_ref: np.ndarray,
+    mu: np.ndarray,
+    fz_min: np.ndarray,
+    fz_max: np.ndarray,
+    q: np.ndarray,
+    rho: float,
+    c0: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    weight: float,
+    band: float,
+):
     """Everything a step needs before the solver, in one compiled call.
 
     Model, kept forces, per-pattern bases, condensed Hessian H = L L' (Cholesky)
@@ -319,9 +360,23 @@ def build(x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_inv: np.nd
 
 
 @njit(cache=True)
-def finish(sol: np.ndarray, chol: np.ndarray, basis: np.ndarray, da: np.ndarray, db: np.ndarray, pid: np.ndarray,
-           a_off: np.ndarray, b_off: np.ndarray, x: np.ndarray, a_d: np.ndarray, b_d: np.ndarray, g_d: np.ndarray,
-           x_ref: np.ndarray, q_report: np.ndarray, r_report: float):
+def finish(
+    sol: np.ndarray,
+    chol: np.ndarray,
+    basis: np.ndarray,
+    da: np.ndarray,
+    db: np.ndarray,
+    pid: np.ndarray,
+    a_off: np.ndarray,
+    b_off: np.ndarray,
+    x: np.ndarray,
+    a_d: np.ndarray,
+    b_d: np.ndarray,
+    g_d: np.ndarray,
+    x_ref: np.ndarray,
+    q_report: np.ndarray,
+    r_report: float,
+):
     """Forces u_k = basis_k [a_k; b_k] with a = L'^-1 z, the predicted states and the reported objective."""
     h = pid.shape[0]
     na = chol.shape[0]
@@ -351,8 +406,9 @@ def row_values(u: np.ndarray, step: np.ndarray, comp: np.ndarray, coef: np.ndarr
 
 
 @njit(cache=True)
-def initial_rows(sense: np.ndarray, row_id: np.ndarray, h: int, prev_ids: np.ndarray, prev_sense: np.ndarray,
-                 warm: bool) -> tuple[np.ndarray, np.ndarray]:
+def initial_rows(
+    sense: np.ndarray, row_id: np.ndarray, h: int, prev_ids: np.ndarray, prev_sense: np.ndarray, warm: bool
+) -> tuple[np.ndarray, np.ndarray]:
     """Rows DAQP starts with, and their working-set flags.
 
     Equality rows always; with ``warm``, the previous optimum's active rows moved

@@ -34,7 +34,9 @@ from osqp.interface import SolverStatus
 
 from ..config import MpcConfig, SolverConfig
 from ..gait import ContactPlan
-from ..mpc import DiscreteModel, MpcSolution, failed_solution, objective_weights, remaining, solution_from_inputs
+from ..mpc import DiscreteModel, MpcSolution, failed_solution, remaining, solution_from_inputs
+from . import BACKENDS
+from ._base import MpcBackend
 
 STATUS = {
     SolverStatus.OSQP_SOLVED: "optimal",
@@ -52,38 +54,40 @@ N = 12  # states, and forces, per step
 
 def osqp_settings(solver: SolverConfig) -> dict:
     """Shared settings as OSQP options (the time limit is set per solve to what is left of the deadline)."""
-    opts = dict(eps_abs=solver.eps_abs, eps_rel=solver.eps_rel, max_iter=int(solver.max_iters),
-                warm_starting=bool(solver.warm_start), polishing=True, verbose=bool(solver.verbose),
-                check_termination=5)
+    opts = dict(
+        eps_abs=solver.eps_abs,
+        eps_rel=solver.eps_rel,
+        max_iter=int(solver.max_iters),
+        warm_starting=bool(solver.warm_start),
+        polishing=True,
+        verbose=bool(solver.verbose),
+        check_termination=5,
+    )
     return opts
 
 
 def _patterns() -> tuple[np.ndarray, np.ndarray]:
     """Structural entries of A_d and B_d (the model's sparsity, whatever the state)."""
     a = np.eye(N, dtype=bool)
-    a[0:3, 6:9] = True                        # T E^-1 (attitude)
-    a[3:6, 9:12] = np.eye(3, dtype=bool)      # T I (position <- velocity)
+    a[0:3, 6:9] = True  # T E^-1 (attitude)
+    a[3:6, 9:12] = np.eye(3, dtype=bool)  # T I (position <- velocity)
     b = np.zeros((N, N), dtype=bool)
-    b[0:3, :] = True                          # T^2/2 E^-1 I_w^-1 [r]x
-    b[6:9, :] = True                          # T I_w^-1 [r]x
+    b[0:3, :] = True  # T^2/2 E^-1 I_w^-1 [r]x
+    b[6:9, :] = True  # T I_w^-1 [r]x
     for leg in range(4):
-        b[3:6, 3 * leg:3 * leg + 3] |= np.eye(3, dtype=bool)    # T^2/(2m)
-        b[9:12, 3 * leg:3 * leg + 3] |= np.eye(3, dtype=bool)   # T/m
+        b[3:6, 3 * leg : 3 * leg + 3] |= np.eye(3, dtype=bool)  # T^2/(2m)
+        b[9:12, 3 * leg : 3 * leg + 3] |= np.eye(3, dtype=bool)  # T/m
     return a, b
 
 
-class OsqpMpc:
+@BACKENDS.register()
+class OsqpMpc(MpcBackend):
     """OSQP on the sparse QP, set up once; each step updates values on a fixed sparsity pattern."""
 
-    def __init__(self, cfg: MpcConfig, solver: SolverConfig, mass: float, inertia_body: np.ndarray,
-                 gravity: float) -> None:
-        self.cfg = cfg
-        self.solver_cfg = solver
-        self.mass = float(mass)
-        self.inertia_inv = np.linalg.inv(np.asarray(inertia_body, dtype=float))
-        self.gravity = float(gravity)
-        self.period = 1.0 / cfg.rate_hz
-        self.weights = objective_weights(cfg)
+    def __init__(
+        self, cfg: MpcConfig, solver: SolverConfig, mass: float, inertia_body: np.ndarray, gravity: float
+    ) -> None:
+        super().__init__(cfg, solver, mass, inertia_body, gravity)
         self.settings = osqp_settings(solver)
         h = self.h = cfg.horizon
         self.nx = N * h
@@ -91,8 +95,9 @@ class OsqpMpc:
         weight = self.mass * self.gravity
         band = float(cfg.force_balance_band)
         scale = cfg.objective_scale
-        self.p = sp.diags(np.concatenate([np.tile(np.asarray(cfg.q_diag, float) * scale, h),
-                                          np.full(N * h, cfg.r_weight * scale)])).tocsc()
+        self.p = sp.diags(
+            np.concatenate([np.tile(np.asarray(cfg.q_diag, float) * scale, h), np.full(N * h, cfg.r_weight * scale)])
+        ).tocsc()
         # constant parts of the bounds: friction rows one-sided, balance rows the band
         self.lower = np.zeros(self.m)
         self.upper = np.zeros(self.m)
@@ -108,23 +113,32 @@ class OsqpMpc:
         a_mask, b_mask = _patterns()
         ar, ac = np.nonzero(a_mask)
         br, bc = np.nonzero(b_mask)
-        rows, cols, kind = [], [], []   # kind: 0 constant (value in `const`), 1 A entry, 2 B entry, 3 mu entry
+        rows, cols, kind = [], [], []  # kind: 0 constant (value in `const`), 1 A entry, 2 B entry, 3 mu entry
         const, src_r, src_c, src_k, src_leg, sign = [], [], [], [], [], []
 
-        def add(r: int, c: int, k: int, value: float = 0.0, sr: int = 0, sc: int = 0, step: int = 0, leg: int = 0,
-                s: float = 0.0) -> None:
+        def add(
+            r: int,
+            c: int,
+            k: int,
+            value: float = 0.0,
+            sr: int = 0,
+            sc: int = 0,
+            step: int = 0,
+            leg: int = 0,
+            s: float = 0.0,
+        ) -> None:
             rows.append(r), cols.append(c), kind.append(k), const.append(value)
             src_r.append(sr), src_c.append(sc), src_k.append(step), src_leg.append(leg), sign.append(s)
 
         nx = self.nx
         for k in range(h):
             for i in range(N):
-                add(N * k + i, N * k + i, 0, 1.0)                       # e_{k+1}
+                add(N * k + i, N * k + i, 0, 1.0)  # e_{k+1}
             if k > 0:
                 for r, c in zip(ar, ac):
-                    add(N * k + r, N * (k - 1) + c, 1, sr=r, sc=c)      # -A e_k
+                    add(N * k + r, N * (k - 1) + c, 1, sr=r, sc=c)  # -A e_k
             for r, c in zip(br, bc):
-                add(N * k + r, nx + N * k + c, 2, sr=r, sc=c)           # -B u_k
+                add(N * k + r, nx + N * k + c, 2, sr=r, sc=c)  # -B u_k
         row = N * h
         fz_rows, le, ge, balance = [], [], [], []
         for k in range(h):
@@ -134,7 +148,7 @@ class OsqpMpc:
                 fz_rows.append(row)
                 row += 1
                 for ax in range(2):
-                    for s, group in ((-1.0, le), (1.0, ge)):            # f_x,y -+ mu f_z  <= 0 / >= 0
+                    for s, group in ((-1.0, le), (1.0, ge)):  # f_x,y -+ mu f_z  <= 0 / >= 0
                         add(row, nx + N * k + 3 * leg + ax, 0, 1.0)
                         add(row, z, 3, step=k, leg=leg, s=s)
                         group.append(row)
@@ -146,7 +160,7 @@ class OsqpMpc:
         self.m = row
         n = 2 * nx
         rows_a, cols_a = np.asarray(rows), np.asarray(cols)
-        order = np.lexsort((rows_a, cols_a))          # CSC storage order
+        order = np.lexsort((rows_a, cols_a))  # CSC storage order
         self.pattern = sp.csc_matrix((np.ones(len(rows)), (rows_a, cols_a)), shape=(self.m, n))
         if self.pattern.nnz != len(rows):  # pragma: no cover - guards edits to the pattern
             raise RuntimeError("duplicate structural entries in the OSQP pattern")
@@ -169,13 +183,14 @@ class OsqpMpc:
         """New values of the variable entries, in the order of ``idx_var``."""
         return np.concatenate([-model.a[self.a_src], -model.b[self.b_src], self.mu_sign * mu[self.mu_src]])
 
-    def _bounds(self, x: np.ndarray, x_ref: np.ndarray, model: DiscreteModel, plan: ContactPlan
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def _bounds(
+        self, x: np.ndarray, x_ref: np.ndarray, model: DiscreteModel, plan: ContactPlan
+    ) -> tuple[np.ndarray, np.ndarray]:
         previous = np.vstack([x, x_ref[:-1]])
         rhs = (previous @ model.a.T + model.g - x_ref).ravel()
         lower, upper = self.lower.copy(), self.upper.copy()
-        lower[:self.nx] = rhs
-        upper[:self.nx] = rhs
+        lower[: self.nx] = rhs
+        upper[: self.nx] = rhs
         lower[self.fz_rows] = plan.fz_min.ravel()
         upper[self.fz_rows] = plan.fz_max.ravel()
         return lower, upper
@@ -201,8 +216,9 @@ class OsqpMpc:
         start = time.perf_counter()
         as_f64 = np.ascontiguousarray
         x, x_ref = as_f64(x, dtype=float), as_f64(x_ref, dtype=float)
-        model = DiscreteModel(x, as_f64(lever_arms, dtype=float), self.mass, self.inertia_inv, self.gravity,
-                              self.period)
+        model = DiscreteModel(
+            x, as_f64(lever_arms, dtype=float), self.mass, self.inertia_inv, self.gravity, self.period
+        )
         values = self._values(model, np.asarray(plan.mu, dtype=float))
         lower, upper = self._bounds(x, x_ref, model, plan)
         if self._solver is None:
@@ -225,8 +241,18 @@ class OsqpMpc:
         status = STATUS.get(info.status_val, "solver_error")
         if info.status_val in (SolverStatus.OSQP_SOLVED, SolverStatus.OSQP_SOLVED_INACCURATE):
             self._previous = (np.array(result.x), np.array(result.y))
-            u = np.asarray(result.x[self.nx:]).reshape(self.h, N)
-            return solution_from_inputs(u, x, x_ref, model, self.weights, status, info.iter, info.solve_time, start,
-                                        self.solver_cfg.time_limit_s)
+            u = np.asarray(result.x[self.nx :]).reshape(self.h, N)
+            return solution_from_inputs(
+                u,
+                x,
+                x_ref,
+                model,
+                self.weights,
+                status,
+                info.iter,
+                info.solve_time,
+                start,
+                self.solver_cfg.time_limit_s,
+            )
         self._previous = None
         return failed_solution(self.h, status, info.iter, info.solve_time, start)

@@ -40,7 +40,7 @@ class ServoReadings:
 
     position: np.ndarray  # ticks
     velocity: np.ndarray  # 0.229 rpm units
-    load: np.ndarray      # 0.1 % of stall torque
+    load: np.ndarray  # 0.1 % of stall torque
     retries: int = 0
 
 
@@ -114,7 +114,10 @@ class DynamixelBus:
     def _packet_error(self, error: int) -> str:
         return self._ph.getRxPacketError(error & 0x7F) if error & 0x7F else ""
 
-    def _read_reg(self, servo_id: int, addr: int, size: int, what: str) -> int:
+    def _read_reg(self, servo_id: int, name: str) -> int:
+        """One control-table item of one servo, by name (:data:`.xl430.CONTROL_TABLE`), with retries."""
+        addr, size = X.CONTROL_TABLE[name]
+        what = X.label(name)
         fn = {1: self._ph.read1ByteTxRx, 2: self._ph.read2ByteTxRx, 4: self._ph.read4ByteTxRx}[size]
         msg = ""
         for _ in range(self.cfg.comm_retries + 1):
@@ -125,7 +128,10 @@ class DynamixelBus:
             self._recover()
         raise BusError(f"servo {servo_id} ({self._leg(servo_id)}): reading {what} failed {self._where()}: {msg}")
 
-    def _write_reg(self, servo_id: int, addr: int, size: int, value: int, what: str) -> None:
+    def _write_reg(self, servo_id: int, name: str, value: int) -> None:
+        """Write one control-table item of one servo, by name, with retries (a refusal is not retried)."""
+        addr, size = X.CONTROL_TABLE[name]
+        what = X.label(name)
         fn = {1: self._ph.write1ByteTxRx, 2: self._ph.write2ByteTxRx, 4: self._ph.write4ByteTxRx}[size]
         msg = ""
         for _ in range(self.cfg.comm_retries + 1):
@@ -133,8 +139,9 @@ class DynamixelBus:
             if result == X_COMM_SUCCESS and not error & 0x7F:
                 return
             if result == X_COMM_SUCCESS:  # the servo answered and refused: retrying will not help
-                raise BusError(f"servo {servo_id} ({self._leg(servo_id)}) refused {what} = {value}: "
-                               f"{self._packet_error(error)}")
+                raise BusError(
+                    f"servo {servo_id} ({self._leg(servo_id)}) refused {what} = {value}: {self._packet_error(error)}"
+                )
             msg = self._ph.getTxRxResult(result)
             self._recover()
         raise BusError(f"servo {servo_id} ({self._leg(servo_id)}): writing {what} failed {self._where()}: {msg}")
@@ -146,8 +153,7 @@ class DynamixelBus:
 
         port_name = self.cfg.port
         if not os.path.exists(port_name):
-            raise UserError(f"serial port {port_name} does not exist: is the U2D2 plugged in? "
-                            f"(set hardware.port=...)")
+            raise UserError(f"serial port {port_name} does not exist: is the U2D2 plugged in? (set hardware.port=...)")
         self._port = PortHandler(port_name)
         self._ph = PacketHandler(X.PROTOCOL)
         try:
@@ -163,8 +169,8 @@ class DynamixelBus:
         except BusError as exc:
             raise UserError(str(exc)) from None
         self._reader = GroupSyncRead(self._port, self._ph, X.PRESENT_BLOCK_ADDR, X.PRESENT_BLOCK_LEN)
-        self._error_reader = GroupSyncRead(self._port, self._ph, X.ADDR_HARDWARE_ERROR_STATUS, 1)
-        self._writer = GroupSyncWrite(self._port, self._ph, X.ADDR_GOAL_POSITION, 4)
+        self._error_reader = GroupSyncRead(self._port, self._ph, *X.CONTROL_TABLE["Hardware_Error_Status"])
+        self._writer = GroupSyncWrite(self._port, self._ph, *X.CONTROL_TABLE["Goal_Position"])
         for i in self.ids:
             self._reader.addParam(i)
             self._error_reader.addParam(i)
@@ -178,8 +184,9 @@ class DynamixelBus:
         except (OSError, ValueError):
             return []
         if ms > 2:
-            return [f"{sysfs} is {ms} ms: every bus round trip can take that long; set it to 1 "
-                    f"(echo 1 | sudo tee {sysfs})"]
+            return [
+                f"{sysfs} is {ms} ms: every bus round trip can take that long; set it to 1 (echo 1 | sudo tee {sysfs})"
+            ]
         return []
 
     def _ping_all(self) -> None:
@@ -192,18 +199,24 @@ class DynamixelBus:
                 msg = self._ph.getTxRxResult(result)
                 self._recover()
             else:
-                raise UserError(f"servo ID {servo_id} ({leg}) does not answer ping {self._where()} ({msg}): "
-                                f"check power, wiring, the ID (hardware.ids) and the baud rate (hardware.baudrate)")
+                raise UserError(
+                    f"servo ID {servo_id} ({leg}) does not answer ping {self._where()} ({msg}): "
+                    f"check power, wiring, the ID (hardware.ids) and the baud rate (hardware.baudrate)"
+                )
             if model != self.cfg.model_number:
-                raise UserError(f"servo ID {servo_id} ({leg}) reports model number {model}, expected "
-                                f"{self.cfg.model_number} (XL430-W250): check hardware.ids and the servo")
+                raise UserError(
+                    f"servo ID {servo_id} ({leg}) reports model number {model}, expected "
+                    f"{self.cfg.model_number} (XL430-W250): check hardware.ids and the servo"
+                )
 
     def _check_errors(self) -> None:
         for leg, i in zip(self.legs, self.ids):
-            err = self._read_reg(i, X.ADDR_HARDWARE_ERROR_STATUS, 1, "Hardware Error Status")
+            err = self._read_reg(i, "Hardware_Error_Status")
             if err:
-                raise UserError(f"servo ID {i} ({leg}) reports hardware error {X.describe_hardware_error(err)}: "
-                                f"remove the cause, then reboot it (power cycle or Dynamixel Wizard > Reboot)")
+                raise UserError(
+                    f"servo ID {i} ({leg}) reports hardware error {X.describe_hardware_error(err)}: "
+                    f"remove the cause, then reboot it (power cycle or Dynamixel Wizard > Reboot)"
+                )
 
     def configure(self, dry_run: bool) -> list[str]:
         try:
@@ -215,65 +228,75 @@ class DynamixelBus:
         notes: list[str] = []
         profile = int(round(self.cfg.profile_velocity_rpm / X.RPM_PER_VELOCITY_UNIT))
         for k, (leg, i) in enumerate(zip(self.legs, self.ids)):
-            torque = self._read_reg(i, X.ADDR_TORQUE_ENABLE, 1, "Torque Enable")
-            mode = self._read_reg(i, X.ADDR_OPERATING_MODE, 1, "Operating Mode")
-            lo = self._read_reg(i, X.ADDR_MIN_POSITION_LIMIT, 4, "Min Position Limit")
-            hi = self._read_reg(i, X.ADDR_MAX_POSITION_LIMIT, 4, "Max Position Limit")
+            torque = self._read_reg(i, "Torque_Enable")
+            mode = self._read_reg(i, "Operating_Mode")
+            lo = self._read_reg(i, "Min_Position_Limit")
+            hi = self._read_reg(i, "Max_Position_Limit")
             want_lo, want_hi = int(self.smap.min_ticks[k]), int(self.smap.max_ticks[k])
             if dry_run:
                 if torque:
-                    self._write_reg(i, X.ADDR_TORQUE_ENABLE, 1, 0, "Torque Enable")
+                    self._write_reg(i, "Torque_Enable", 0)
                     notes.append(f"servo {i} ({leg}) had torque on: turned it off for the dry run")
                 if mode != X.OPERATING_MODE_POSITION:
                     notes.append(f"servo {i} ({leg}) is in operating mode {mode}: a live run sets 3 (position)")
                 if self.cfg.write_position_limits and (lo, hi) != (want_lo, want_hi):
-                    notes.append(f"servo {i} ({leg}) position limits are {lo}-{hi} ticks: a live run writes "
-                                 f"{want_lo}-{want_hi}")
+                    notes.append(
+                        f"servo {i} ({leg}) position limits are {lo}-{hi} ticks: a live run writes {want_lo}-{want_hi}"
+                    )
                 continue
-            self._write_reg(i, X.ADDR_TORQUE_ENABLE, 1, 0, "Torque Enable")
-            self._write_reg(i, X.ADDR_BUS_WATCHDOG, 1, 0, "Bus Watchdog")
+            self._write_reg(i, "Torque_Enable", 0)
+            self._write_reg(i, "Bus_Watchdog", 0)
             if mode != X.OPERATING_MODE_POSITION:
-                self._write_reg(i, X.ADDR_OPERATING_MODE, 1, X.OPERATING_MODE_POSITION, "Operating Mode")
+                self._write_reg(i, "Operating_Mode", X.OPERATING_MODE_POSITION)
                 notes.append(f"servo {i} ({leg}) was in operating mode {mode}: set 3 (position)")
             if self.cfg.write_position_limits and (lo, hi) != (want_lo, want_hi):
-                self._write_reg(i, X.ADDR_MAX_POSITION_LIMIT, 4, want_hi, "Max Position Limit")
-                self._write_reg(i, X.ADDR_MIN_POSITION_LIMIT, 4, want_lo, "Min Position Limit")
+                self._write_reg(i, "Max_Position_Limit", want_hi)
+                self._write_reg(i, "Min_Position_Limit", want_lo)
                 notes.append(f"servo {i} ({leg}) position limits set to {want_lo}-{want_hi} ticks (were {lo}-{hi})")
-            self._write_reg(i, X.ADDR_PROFILE_VELOCITY, 4, profile, "Profile Velocity")
+            self._write_reg(i, "Profile_Velocity", profile)
         return notes
 
     def enable(self) -> None:
         self._torque_may_be_on = True
-        units = self.cfg.watchdog_ms // 20
+        units = self.cfg.watchdog_ms // X.WATCHDOG_UNIT_MS
         for k, i in enumerate(self.ids):
-            present = self._read_reg(i, X.ADDR_PRESENT_POSITION, 4, "Present Position")
+            present = self._read_reg(i, "Present_Position")
             hold = int(np.clip(present, self.smap.min_ticks[k], self.smap.max_ticks[k]))
-            self._write_reg(i, X.ADDR_GOAL_POSITION, 4, hold, "Goal Position")  # no jump on torque-on
-            self._write_reg(i, X.ADDR_TORQUE_ENABLE, 1, 1, "Torque Enable")
+            self._write_reg(i, "Goal_Position", hold)  # no jump on torque-on
+            self._write_reg(i, "Torque_Enable", 1)
         for i in self.ids:
             if units:
-                self._write_reg(i, X.ADDR_BUS_WATCHDOG, 1, units, "Bus Watchdog")
+                self._write_reg(i, "Bus_Watchdog", units)
 
     def read(self) -> ServoReadings:
         msg = ""
         for attempt in range(self.cfg.comm_retries + 1):
             result = self._reader.txRxPacket()
             if result == X_COMM_SUCCESS and all(
-                    self._reader.isAvailable(i, X.PRESENT_BLOCK_ADDR, X.PRESENT_BLOCK_LEN) for i in self.ids):
-                get = self._reader.getData
+                self._reader.isAvailable(i, X.PRESENT_BLOCK_ADDR, X.PRESENT_BLOCK_LEN) for i in self.ids
+            ):
                 return ServoReadings(
-                    position=np.array([X.signed(get(i, X.ADDR_PRESENT_POSITION, 4), 4) for i in self.ids]),
-                    velocity=np.array([X.signed(get(i, X.ADDR_PRESENT_VELOCITY, 4), 4) for i in self.ids]),
-                    load=np.array([X.signed(get(i, X.ADDR_PRESENT_LOAD, 2), 2) for i in self.ids]),
-                    retries=attempt)
+                    position=self._present("Present_Position"),
+                    velocity=self._present("Present_Velocity"),
+                    load=self._present("Present_Load"),
+                    retries=attempt,
+                )
             msg = self._ph.getTxRxResult(result)
             self._recover()
-        raise BusError(f"reading the servos failed {self.cfg.comm_retries + 1} times in a row {self._where()} "
-                       f"({msg}): check the cable and the servo power")
+        raise BusError(
+            f"reading the servos failed {self.cfg.comm_retries + 1} times in a row {self._where()} "
+            f"({msg}): check the cable and the servo power"
+        )
+
+    def _present(self, name: str) -> np.ndarray:
+        """One item of the last present-block sync read, per servo, signed."""
+        addr, size = X.CONTROL_TABLE[name]
+        return np.array([X.signed(self._reader.getData(i, addr, size), size) for i in self.ids])
 
     def write_goals(self, ticks: np.ndarray) -> int:
+        _addr, size = X.CONTROL_TABLE["Goal_Position"]
         for i, value in zip(self.ids, ticks):
-            data = X.le_bytes(int(value), 4)
+            data = X.le_bytes(int(value), size)
             ok = self._writer.changeParam(i, data) if self._writer_ready else self._writer.addParam(i, data)
             if not ok:  # pragma: no cover - only on an SDK contract change
                 raise BusError(f"servo {i}: GroupSyncWrite refused the goal position parameter")
@@ -285,20 +308,22 @@ class DynamixelBus:
                 return attempt
             msg = self._ph.getTxRxResult(result)
             self._recover()
-        raise BusError(f"sending goal positions failed {self.cfg.comm_retries + 1} times in a row "
-                       f"{self._where()} ({msg})")
+        raise BusError(
+            f"sending goal positions failed {self.cfg.comm_retries + 1} times in a row {self._where()} ({msg})"
+        )
 
     def hardware_errors(self) -> np.ndarray:
+        item = X.CONTROL_TABLE["Hardware_Error_Status"]
         msg = ""
         for _ in range(self.cfg.comm_retries + 1):
             result = self._error_reader.txRxPacket()
-            if result == X_COMM_SUCCESS and all(
-                    self._error_reader.isAvailable(i, X.ADDR_HARDWARE_ERROR_STATUS, 1) for i in self.ids):
-                return np.array([self._error_reader.getData(i, X.ADDR_HARDWARE_ERROR_STATUS, 1) for i in self.ids])
+            if result == X_COMM_SUCCESS and all(self._error_reader.isAvailable(i, *item) for i in self.ids):
+                return np.array([self._error_reader.getData(i, *item) for i in self.ids])
             msg = self._ph.getTxRxResult(result)
             self._recover()
-        raise BusError(f"reading Hardware Error Status failed {self.cfg.comm_retries + 1} times in a row "
-                       f"{self._where()} ({msg})")
+        raise BusError(
+            f"reading Hardware Error Status failed {self.cfg.comm_retries + 1} times in a row {self._where()} ({msg})"
+        )
 
     def disable(self) -> list[str]:
         if self._port is None or not self._torque_may_be_on:
@@ -307,12 +332,12 @@ class DynamixelBus:
         problems = []
         for i in self.ids:
             try:
-                self._write_reg(i, X.ADDR_TORQUE_ENABLE, 1, 0, "Torque Enable")
+                self._write_reg(i, "Torque_Enable", 0)
             except BusError as exc:
                 problems.append(str(exc))
                 continue
             try:
-                self._write_reg(i, X.ADDR_BUS_WATCHDOG, 1, 0, "Bus Watchdog")
+                self._write_reg(i, "Bus_Watchdog", 0)
             except BusError:
                 pass  # torque is off; the watchdog only acts while torque is on
         if not problems:

@@ -11,17 +11,24 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any
 
-from ..config import ConfigError, SlotConfig, _choice, _num, _vec, validate
+from ..config import ConfigError, SlotConfig, choice_field, num_field, validate, vec_field
+from .xl430 import DEG_PER_TICK, MAX_TICK, MODEL_NUMBER, WATCHDOG_MAX_UNITS, WATCHDOG_UNIT_MS
 
-__all__ = ["HardwareConfig", "OdometryConfig", "HardwareExperiment", "HardwareSlotConfig",
-           "SUPPORTED_BAUDRATES", "validate_hardware", "load_hardware_config", "register_hardware_schemas"]
+__all__ = [
+    "HardwareConfig",
+    "OdometryConfig",
+    "HardwareExperiment",
+    "HardwareSlotConfig",
+    "SUPPORTED_BAUDRATES",
+    "validate_hardware",
+    "load_hardware_config",
+    "register_hardware_schemas",
+]
 
 # Rates both the XL430 (Baud Rate item, address 8) and dynamixel-sdk's PortHandler accept.
 SUPPORTED_BAUDRATES = (9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000)
-WATCHDOG_UNIT_MS = 20  # XL430 Bus Watchdog (address 98) counts in 20 ms steps, 1..127
-DEG_PER_TICK = 360.0 / 4096.0
 ZMQ_SCHEMES = ("tcp://", "ipc://", "inproc://")
 
 
@@ -40,17 +47,17 @@ class HardwareConfig:
     name: str = "xl430"
     port: str = "/dev/ttyUSB0"
     baudrate: int = 1000000
-    model_number: int = _num(1060, lo=0, hi=65535, unit="")  # XL430-W250
-    ids: list[int] = _vec([1, 2, 3, 4], length=4, lo=0, hi=252, unit="")
-    direction: list[int] = _vec([1, 1, 1, 1], length=4, lo=-1, hi=1, unit="")
-    zero_offset_deg: list[float] = _vec([130.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
-    min_position_deg: list[float] = _vec([130.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
-    max_position_deg: list[float] = _vec([250.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
-    profile_velocity_rpm: float = _num(40.0, lo=0.0, hi=61.0, unit="rpm")  # 0: no profile, full speed
-    watchdog_ms: int = _num(100, lo=0, hi=127 * WATCHDOG_UNIT_MS, unit="ms")  # 0: off
-    rate_hz: float = _num(30.0, lo=0.0, lo_open=True, hi=1000.0, unit="Hz")
-    comm_retries: int = _num(3, lo=0, hi=20, unit="")
-    error_check_every: int = _num(15, lo=1, hi=100000, unit="cycles")
+    model_number: int = num_field(MODEL_NUMBER, lo=0, hi=65535, unit="")  # XL430-W250
+    ids: list[int] = vec_field([1, 2, 3, 4], length=4, lo=0, hi=252, unit="")
+    direction: list[int] = vec_field([1, 1, 1, 1], length=4, lo=-1, hi=1, unit="")
+    zero_offset_deg: list[float] = vec_field([130.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
+    min_position_deg: list[float] = vec_field([130.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
+    max_position_deg: list[float] = vec_field([250.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
+    profile_velocity_rpm: float = num_field(57.0, lo=0.0, hi=61.0, unit="rpm")  # robot.servo's; 0: no profile
+    watchdog_ms: int = num_field(100, lo=0, hi=WATCHDOG_MAX_UNITS * WATCHDOG_UNIT_MS, unit="ms")  # 0: off
+    rate_hz: float = num_field(30.0, lo=0.0, lo_open=True, hi=1000.0, unit="Hz")
+    comm_retries: int = num_field(3, lo=0, hi=20, unit="")
+    error_check_every: int = num_field(15, lo=1, hi=100000, unit="cycles")
     write_position_limits: bool = True
 
 
@@ -58,12 +65,12 @@ class HardwareConfig:
 class OdometryConfig:
     """Where the state estimate comes from (Algorithm 1, lines 6-14)."""
 
-    source: str = _choice("zmq", "zmq", "replay", "sim")
+    source: str = choice_field("zmq", "zmq", "replay", "sim")
     endpoint: str = "tcp://127.0.0.1:5556"
     bind: bool = False
-    max_age_s: float = _num(0.2, lo=0.0, lo_open=True, hi=10.0, unit="s")
-    startup_timeout_s: float = _num(5.0, lo=0.0, lo_open=True, hi=600.0, unit="s")
-    path: Optional[str] = None  # replay: a run directory or .mcap log whose /state is replayed
+    max_age_s: float = num_field(0.2, lo=0.0, lo_open=True, hi=10.0, unit="s")
+    startup_timeout_s: float = num_field(5.0, lo=0.0, lo_open=True, hi=600.0, unit="s")
+    path: str | None = None  # replay: a run directory or .mcap log whose /state is replayed
 
 
 @dataclass
@@ -79,7 +86,7 @@ class HardwareSlotConfig(SlotConfig):
 
     hardware: HardwareConfig = field(default_factory=HardwareConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
-    duration: Optional[float] = _num(None, lo=0.0, lo_open=True, unit="s")  # None: until Ctrl-C
+    duration: float | None = num_field(None, lo=0.0, lo_open=True, unit="s")  # None: until Ctrl-C
     dry_run: bool = False
     experiment: Any = field(default_factory=HardwareExperiment)
 
@@ -93,8 +100,10 @@ def validate_hardware(cfg: HardwareSlotConfig) -> HardwareSlotConfig:
     validate(cfg)
     hw, od = cfg.hardware, cfg.odometry
     if hw.baudrate not in SUPPORTED_BAUDRATES:
-        raise ConfigError(f"hardware.baudrate = {hw.baudrate} is not supported: choose one of "
-                          f"{', '.join(map(str, SUPPORTED_BAUDRATES))}")
+        raise ConfigError(
+            f"hardware.baudrate = {hw.baudrate} is not supported: choose one of "
+            f"{', '.join(map(str, SUPPORTED_BAUDRATES))}"
+        )
     if len(set(hw.ids)) != len(hw.ids):
         raise ConfigError(f"hardware.ids = {hw.ids} repeats an ID: each leg needs its own servo ID")
     for i, d in enumerate(hw.direction):
@@ -103,25 +112,36 @@ def validate_hardware(cfg: HardwareSlotConfig) -> HardwareSlotConfig:
     for i, leg in enumerate(cfg.robot.leg.names):
         lo, hi = hw.min_position_deg[i], hw.max_position_deg[i]
         if not lo < hi:
-            raise ConfigError(f"hardware.min_position_deg[{i}] = {lo:g} must be below max_position_deg[{i}] = "
-                              f"{hi:g} ({leg})")
-        if _ticks(hi) > 4095:
-            raise ConfigError(f"hardware.max_position_deg[{i}] = {hi:g} is beyond the XL430's position range "
-                              f"(<= {4095 * DEG_PER_TICK:.3f} deg = 4095 ticks)")
+            raise ConfigError(
+                f"hardware.min_position_deg[{i}] = {lo:g} must be below max_position_deg[{i}] = {hi:g} ({leg})"
+            )
+        if _ticks(hi) > MAX_TICK:
+            raise ConfigError(
+                f"hardware.max_position_deg[{i}] = {hi:g} is beyond the XL430's position range "
+                f"(<= {MAX_TICK * DEG_PER_TICK:.3f} deg = {MAX_TICK} ticks)"
+            )
     period_ms = 1000.0 / hw.rate_hz
     if not math.isclose(hw.rate_hz, cfg.mpc.rate_hz, rel_tol=1e-9):
-        raise ConfigError(f"hardware.rate_hz = {hw.rate_hz:g} differs from mpc.rate_hz = {cfg.mpc.rate_hz:g}: "
-                          f"the MPC model is discretised at mpc.rate_hz, set both (or only mpc.rate_hz)")
+        raise ConfigError(
+            f"hardware.rate_hz = {hw.rate_hz:g} differs from mpc.rate_hz = {cfg.mpc.rate_hz:g}: "
+            f"the MPC model is discretised at mpc.rate_hz, set both (or only mpc.rate_hz)"
+        )
     if hw.watchdog_ms:
         if hw.watchdog_ms % WATCHDOG_UNIT_MS:
-            raise ConfigError(f"hardware.watchdog_ms = {hw.watchdog_ms} is not a multiple of {WATCHDOG_UNIT_MS} ms "
-                              f"(the XL430 Bus Watchdog unit)")
+            raise ConfigError(
+                f"hardware.watchdog_ms = {hw.watchdog_ms} is not a multiple of {WATCHDOG_UNIT_MS} ms "
+                f"(the XL430 Bus Watchdog unit)"
+            )
         if hw.watchdog_ms < 2 * period_ms:
-            raise ConfigError(f"hardware.watchdog_ms = {hw.watchdog_ms} is shorter than two loop periods "
-                              f"({2 * period_ms:.1f} ms): ordinary jitter would stop the servos")
+            raise ConfigError(
+                f"hardware.watchdog_ms = {hw.watchdog_ms} is shorter than two loop periods "
+                f"({2 * period_ms:.1f} ms): ordinary jitter would stop the servos"
+            )
     if od.source == "zmq" and not od.endpoint.startswith(ZMQ_SCHEMES):
-        raise ConfigError(f"odometry.endpoint = {od.endpoint!r} is not a ZeroMQ address: use e.g. "
-                          f"tcp://127.0.0.1:5556 or ipc:///tmp/odom")
+        raise ConfigError(
+            f"odometry.endpoint = {od.endpoint!r} is not a ZeroMQ address: use e.g. "
+            f"tcp://127.0.0.1:5556 or ipc:///tmp/odom"
+        )
     if od.source == "replay" and not od.path:
         raise ConfigError("odometry.path is not set: pass odometry.path=<run dir or .mcap log> to replay")
     return cfg
@@ -137,6 +157,8 @@ def load_hardware_config(cfg: Any) -> HardwareSlotConfig:
     return validate_hardware(obj)
 
 
-def register_hardware_schemas(cs: Any) -> None:
-    """Store the root schema of ``conf/hardware_config.yaml`` in Hydra's ConfigStore."""
-    cs.store(name="hardware_schema", node=HardwareSlotConfig)
+def register_hardware_schemas() -> None:
+    """Store the root schema of ``conf/hardware_config.yaml`` in Hydra's ConfigStore (the CLI calls this)."""
+    from hydra.core.config_store import ConfigStore
+
+    ConfigStore.instance().store(name="hardware_schema", node=HardwareSlotConfig)

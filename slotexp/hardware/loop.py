@@ -2,7 +2,7 @@
 
 Each cycle: read the servos; take the newest state estimate (stop if it is too old);
 gait phase, reference and MPC with the last-feasible fallback
-(:meth:`slotexp.controller.Controller.step`); map f_z to tendon angles (eq. 11) and
+(:meth:`slotexp.controllers.Controller.step`); map f_z to tendon angles (eq. 11) and
 tendon angles to clamped servo positions; command them (not in a dry run); check
 Hardware Error Status every few cycles; log the step with the simulation's schema
 (:func:`slotexp.simulation.log_step`) plus ``/servos`` and ``/loop``; sleep to the
@@ -16,14 +16,14 @@ measured attitude.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
 from ..body import quat_to_rot
 from ..config import SlotConfig
-from ..controller import Controller
+from ..controllers import Controller
 from ..reference import reference
 from ..robot import RobotModel
 from ..simulation import Sink, log_step
@@ -53,7 +53,7 @@ class LoopOutcome:
     error: str | None = None
 
     @classmethod
-    def empty(cls, rate_hz: float) -> "LoopOutcome":
+    def empty(cls, rate_hz: float) -> LoopOutcome:
         return cls(steps=0, stop_reason="", stats=LoopStats(1.0 / rate_hz))
 
 
@@ -62,11 +62,26 @@ def nominal_feet(robot: RobotModel, position: np.ndarray, quaternion: np.ndarray
     return position + robot.feet_body @ quat_to_rot(np.asarray(quaternion, dtype=float)).T
 
 
-def run_loop(cfg: SlotConfig, robot: RobotModel, controller: Controller, bus: ServoBus, odometry: OdometrySource,
-             smap: ServoMap, sink: Sink, stop: StopFlag, *, rate_hz: float, max_age_s: float,
-             error_check_every: int, duration: float | None, dry_run: bool, outcome: LoopOutcome | None = None,
-             notify: Callable[[str], None] = lambda _m: None,
-             clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> LoopOutcome:
+def run_loop(
+    cfg: SlotConfig,
+    robot: RobotModel,
+    controller: Controller,
+    bus: ServoBus,
+    odometry: OdometrySource,
+    smap: ServoMap,
+    sink: Sink,
+    stop: StopFlag,
+    *,
+    rate_hz: float,
+    max_age_s: float,
+    error_check_every: int,
+    duration: float | None,
+    dry_run: bool,
+    outcome: LoopOutcome | None = None,
+    notify: Callable[[str], None] = lambda _m: None,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> LoopOutcome:
     """Run until ``duration``, a stop signal, the end of a replay, or a :class:`SafetyStop` / ``BusError``.
 
     Safety stops propagate as exceptions (the caller turns the torque off). Pass an
@@ -101,8 +116,11 @@ def run_loop(cfg: SlotConfig, robot: RobotModel, controller: Controller, bus: Se
             break
         age = float("inf") if sample is None else clock() - sample.received
         if age > max_age_s:
-            raise SafetyStop("stale odometry", f"odometry is {age:.3f} s old (limit odometry.max_age_s = "
-                             f"{max_age_s:g} s): stopped the loop and turned the torque off")
+            raise SafetyStop(
+                "stale odometry",
+                f"odometry is {age:.3f} s old (limit odometry.max_age_s = "
+                f"{max_age_s:g} s): stopped the loop and turned the torque off",
+            )
         x = sample.state
         step = controller.step(t, x, nominal_feet(robot, sample.position, sample.quaternion))
         t_solve = clock()
@@ -115,38 +133,77 @@ def run_loop(cfg: SlotConfig, robot: RobotModel, controller: Controller, bus: Se
             hw_errors = bus.hardware_errors()
             if np.any(hw_errors):
                 k = int(np.flatnonzero(hw_errors)[0])
-                raise SafetyStop("hardware error", f"servo {bus.ids[k]} ({names[k]}) reports hardware error "
-                                 f"{X.describe_hardware_error(int(hw_errors[k]))}: stopped, torque off")
+                raise SafetyStop(
+                    "hardware error",
+                    f"servo {bus.ids[k]} ({names[k]}) reports hardware error "
+                    f"{X.describe_hardware_error(int(hw_errors[k]))}: stopped, torque off",
+                )
         outcome.clamped += clamped
         outcome.comm_retries += retries
         for k in np.flatnonzero(clamped & ~warned):
             warned[k] = True
-            notify(f"note: {names[k]} command clamped to the servo limits (tendon {step.tendon_deg[k]:.2f} deg "
-                   f"-> {smap.to_tendon_deg(goal)[k]:.2f} deg); counted in /servos and the summary")
+            notify(
+                f"note: {names[k]} command clamped to the servo limits (tendon {step.tendon_deg[k]:.2f} deg "
+                f"-> {smap.to_tendon_deg(goal)[k]:.2f} deg); counted in /servos and the summary"
+            )
         if p_des is None:
             p_des = x[3:5].copy()
         x_ref_now = reference(x, t, cfg.gait, period, 1, start=0)[0]
         x_ref_now[3:5] = p_des
         p_des = p_des + period * x_ref_now[9:11]
-        log_step(sink, t, x, x, x_ref_now, step, controller.infeasible_steps, {"com": sample.position},
-                 sample.position, sample.quaternion, names, q_diag)
-        sink.write("/servos", t, {
-            "ids": list(bus.ids), "sent": not dry_run,
-            "goal": goal, "goal_deg": goal * X.DEG_PER_TICK, "goal_tendon_deg": smap.to_tendon_deg(goal),
-            "clamped": clamped,
-            "present_position": readings.position, "present_position_deg": readings.position * X.DEG_PER_TICK,
-            "present_tendon_deg": smap.to_tendon_deg(readings.position),
-            "present_velocity_rpm": readings.velocity * X.RPM_PER_VELOCITY_UNIT,
-            "present_load_percent": readings.load * X.LOAD_PERCENT_PER_UNIT,
-            "hardware_error": hw_errors, "comm_retries": retries})
+        log_step(
+            sink,
+            t,
+            x,
+            x,
+            x_ref_now,
+            step,
+            controller.infeasible_steps,
+            {"com": sample.position},
+            sample.position,
+            sample.quaternion,
+            names,
+            q_diag,
+        )
+        sink.write(
+            "/servos",
+            t,
+            {
+                "ids": list(bus.ids),
+                "sent": not dry_run,
+                "goal": goal,
+                "goal_deg": goal * X.DEG_PER_TICK,
+                "goal_tendon_deg": smap.to_tendon_deg(goal),
+                "clamped": clamped,
+                "present_position": readings.position,
+                "present_position_deg": readings.position * X.DEG_PER_TICK,
+                "present_tendon_deg": smap.to_tendon_deg(readings.position),
+                "present_velocity_rpm": readings.velocity * X.RPM_PER_VELOCITY_UNIT,
+                "present_load_percent": readings.load * X.LOAD_PERCENT_PER_UNIT,
+                "hardware_error": hw_errors,
+                "comm_retries": retries,
+            },
+        )
         lateness = started - sched.due
         cycle_time = clock() - started
         overrun = clock() > sched.next_due
-        sink.write("/loop", t, {
-            "cycle": sched.k, "cycle_time_s": cycle_time, "read_s": t_read - started,
-            "solve_s": t_solve - t_read, "write_s": t_write - t_solve, "lateness_s": lateness,
-            "overrun": overrun, "overruns_total": sched.overruns + int(overrun),
-            "skipped_total": sched.skipped, "odometry_age_s": age, "odometry_stamp": sample.stamp})
+        sink.write(
+            "/loop",
+            t,
+            {
+                "cycle": sched.k,
+                "cycle_time_s": cycle_time,
+                "read_s": t_read - started,
+                "solve_s": t_solve - t_read,
+                "write_s": t_write - t_solve,
+                "lateness_s": lateness,
+                "overrun": overrun,
+                "overruns_total": sched.overruns + int(overrun),
+                "skipped_total": sched.skipped,
+                "odometry_age_s": age,
+                "odometry_stamp": sample.stamp,
+            },
+        )
         stats.add(started, cycle_time, lateness, age)
         outcome.steps += 1
         sched.wait_next()

@@ -20,18 +20,23 @@ from .xl430 import DEG_PER_TICK
 class ServoMap:
     """Per-servo mapping constants, in leg order."""
 
-    zero_deg: np.ndarray       # (4,)
-    direction: np.ndarray      # (4,) +-1
-    min_ticks: np.ndarray      # (4,) int
-    max_ticks: np.ndarray      # (4,) int
+    zero_deg: np.ndarray  # (4,)
+    direction: np.ndarray  # (4,) +-1
+    min_ticks: np.ndarray  # (4,) int
+    max_ticks: np.ndarray  # (4,) int
     tendon_max_deg: float
 
     @classmethod
-    def from_config(cls, hw: HardwareConfig, tendon_max_deg: float) -> "ServoMap":
+    def from_config(cls, hw: HardwareConfig, tendon_max_deg: float) -> ServoMap:
         lo = [round(d / DEG_PER_TICK) for d in hw.min_position_deg]  # the nearest tick: within 0.044 deg
         hi = [round(d / DEG_PER_TICK) for d in hw.max_position_deg]
-        return cls(np.asarray(hw.zero_offset_deg, float), np.asarray(hw.direction, float),
-                   np.asarray(lo, np.int64), np.asarray(hi, np.int64), float(tendon_max_deg))
+        return cls(
+            np.asarray(hw.zero_offset_deg, float),
+            np.asarray(hw.direction, float),
+            np.asarray(lo, np.int64),
+            np.asarray(hi, np.int64),
+            float(tendon_max_deg),
+        )
 
     def to_ticks(self, tendon_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Goal positions (ticks, int64) for tendon angles, and which of them had to be clamped."""

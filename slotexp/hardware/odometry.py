@@ -20,9 +20,10 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -32,11 +33,11 @@ from ..errors import UserError
 
 @dataclass
 class OdometrySample:
-    state: np.ndarray       # (12,) MPC state
-    position: np.ndarray    # (3,) world
+    state: np.ndarray  # (12,) MPC state
+    position: np.ndarray  # (3,) world
     quaternion: np.ndarray  # (4,) w, x, y, z, body -> world
-    stamp: float            # the source's own time (message t, log time, sim time)
-    received: float         # local monotonic time of arrival
+    stamp: float  # the source's own time (message t, log time, sim time)
+    received: float  # local monotonic time of arrival
 
 
 class OdometrySource(Protocol):
@@ -85,15 +86,17 @@ def sample_from_message(msg: Any, received: float) -> OdometrySample:
     q = q / norm
     omega_world = quat_to_rot(q) @ w_body
     state = np.concatenate([quat_to_euler(q), p, omega_world, v])
-    return OdometrySample(state=state, position=p, quaternion=q, stamp=stamp if math.isfinite(stamp) else 0.0,
-                          received=received)
+    return OdometrySample(
+        state=state, position=p, quaternion=q, stamp=stamp if math.isfinite(stamp) else 0.0, received=received
+    )
 
 
 def sample_from_state(x: np.ndarray, stamp: float, received: float) -> OdometrySample:
     """A sample from an MPC state (replay, simulator)."""
     x = np.asarray(x, dtype=float)
-    return OdometrySample(state=x.copy(), position=x[3:6].copy(), quaternion=euler_to_quat(*x[0:3]),
-                          stamp=stamp, received=received)
+    return OdometrySample(
+        state=x.copy(), position=x[3:6].copy(), quaternion=euler_to_quat(*x[0:3]), stamp=stamp, received=received
+    )
 
 
 class ZmqOdometry:
@@ -123,8 +126,9 @@ class ZmqOdometry:
             (sock.bind if self.bind else sock.connect)(self.endpoint)
         except zmq.ZMQError as exc:
             sock.close(0)
-            raise UserError(f"odometry.endpoint {self.endpoint}: cannot {'bind' if self.bind else 'connect'}: "
-                            f"{exc}") from None
+            raise UserError(
+                f"odometry.endpoint {self.endpoint}: cannot {'bind' if self.bind else 'connect'}: {exc}"
+            ) from None
         self._sock = sock
 
     def latest(self) -> OdometrySample | None:
@@ -229,8 +233,13 @@ class SimOdometry:
         pass
 
 
-def wait_first(source: OdometrySource, timeout_s: float, stopped: Callable[[], bool],
-               clock: Callable[[], float] = time.monotonic, poll_s: float = 0.01) -> OdometrySample | None:
+def wait_first(
+    source: OdometrySource,
+    timeout_s: float,
+    stopped: Callable[[], bool],
+    clock: Callable[[], float] = time.monotonic,
+    poll_s: float = 0.01,
+) -> OdometrySample | None:
     """Block until the first sample; None if a stop was requested; UserError after ``timeout_s``."""
     deadline = clock() + timeout_s
     while True:
@@ -244,6 +253,8 @@ def wait_first(source: OdometrySource, timeout_s: float, stopped: Callable[[], b
             extra = ""
             if source.bad_messages:
                 extra = f"; {source.bad_messages} unreadable message(s), last: {getattr(source, 'last_problem', '')}"
-            raise UserError(f"no odometry from {where} within {timeout_s:g} s (odometry.startup_timeout_s): "
-                            f"is the VIO publisher running?{extra}")
+            raise UserError(
+                f"no odometry from {where} within {timeout_s:g} s (odometry.startup_timeout_s): "
+                f"is the VIO publisher running?{extra}"
+            )
         time.sleep(poll_s)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..jobs.simulate import report as simulate_report
+from ..jobs.simulate import write_report
 from ..record import read_log
 from ..runlog import find_logs
 
@@ -19,14 +19,9 @@ DRIFT_DISTANCE_M = 0.8  # as the simulate experiment's default: lateral drift ov
 
 def report(run_dir: Path, velocity: list[float], legs: list[str]) -> dict:
     """Write metrics.json, fig4_com.png and fig6_path.png for a hardware run directory."""
-    result = simulate_report(run_dir, list(velocity), DRIFT_DISTANCE_M, list(legs))
+    result = write_report(run_dir, list(velocity), DRIFT_DISTANCE_M, list(legs))
     meta = read_log(find_logs(run_dir)[0]).metadata
     result["loop"] = {k: float(v) for k, v in meta.get("loop", {}).items()}
     result["stop_reason"] = meta.get("summary", {}).get("stop_reason", "")
     (run_dir / "metrics.json").write_text(json.dumps(result, indent=2))
     return result
-
-
-def report_from_log(run_dir: Path, conf) -> dict:
-    """``slot figures`` entry: the settings come from the config stored in the log."""
-    return report(run_dir, list(conf.gait.velocity), list(conf.robot.leg.names))

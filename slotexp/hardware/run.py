@@ -14,12 +14,12 @@ from __future__ import annotations
 import copy
 import datetime as _dt
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from .. import __version__
-from ..controller import Controller
+from ..controllers import Controller, make_controller
 from ..record import Recorder
 from ..robot import RobotModel, build_robot
 from .bus import BusError, DynamixelBus, ServoBus
@@ -28,8 +28,8 @@ from .loop import LoopOutcome, SafetyStop, nominal_feet, run_loop
 from .mapping import ServoMap
 from .odometry import OdometrySample, OdometrySource, ReplayOdometry, SimOdometry, ZmqOdometry, wait_first
 from .safety import StopFlag
-from .xl430 import DEG_PER_TICK
 from .simbus import SimulatedBus, SimWorld
+from .xl430 import DEG_PER_TICK
 
 EXIT_OK = 0
 EXIT_SAFETY_STOP = 3
@@ -40,7 +40,7 @@ LOG_NAME = "hardware.mcap"
 @dataclass
 class HardwareResult:
     exit_code: int
-    message: str                 # one line for stderr, "" if there is nothing to say
+    message: str  # one line for stderr, "" if there is nothing to say
     log_path: Path | None
     outcome: LoopOutcome | None
 
@@ -71,21 +71,35 @@ def warm_up(controller: Controller, robot: RobotModel, sample: OdometrySample) -
 
 def _run_metadata(cfg: HardwareSlotConfig, commit: str) -> dict[str, str]:
     sim = cfg.odometry.source == "sim"
-    return {"experiment": "hardware", "scenario": "hardware", "gait": cfg.gait.name,
-            "plant": cfg.plant.name if sim else "hardware", "solver": cfg.solver.name,
-            "bus": "simulated" if sim else "dynamixel", "port": "" if sim else cfg.hardware.port,
-            "odometry": cfg.odometry.source, "dry_run": str(cfg.dry_run).lower(),
-            "rate_hz": repr(cfg.hardware.rate_hz), "duration_s": repr(cfg.duration),
-            "git_commit": commit, "slotexp_version": __version__,
-            "started_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+    return {
+        "experiment": "hardware",
+        "scenario": "hardware",
+        "gait": cfg.gait.name,
+        "plant": cfg.plant.name if sim else "hardware",
+        "solver": cfg.solver.name,
+        "bus": "simulated" if sim else "dynamixel",
+        "port": "" if sim else cfg.hardware.port,
+        "odometry": cfg.odometry.source,
+        "dry_run": str(cfg.dry_run).lower(),
+        "rate_hz": repr(cfg.hardware.rate_hz),
+        "duration_s": repr(cfg.duration),
+        "git_commit": commit,
+        "slotexp_version": __version__,
+        "started_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    }
 
 
 def _fmt(value: float) -> str:
     return f"{value:.6g}"
 
 
-def run_hardware(cfg: HardwareSlotConfig, out_dir: Path, resolved_yaml: str,
-                 notify: Callable[[str], None] = lambda _m: None, commit: str = "unknown") -> HardwareResult:
+def run_hardware(
+    cfg: HardwareSlotConfig,
+    out_dir: Path,
+    resolved_yaml: str,
+    notify: Callable[[str], None] = lambda _m: None,
+    commit: str = "unknown",
+) -> HardwareResult:
     """Run the loop on the configured bus and odometry; write ``out_dir/logs/hardware.mcap``."""
     hw, od = cfg.hardware, cfg.odometry
     robot = build_robot(cfg.robot)
@@ -93,8 +107,10 @@ def run_hardware(cfg: HardwareSlotConfig, out_dir: Path, resolved_yaml: str,
     lo, hi = smap.tendon_range_deg()
     for k, leg in enumerate(robot.names):
         if lo[k] > DEG_PER_TICK or hi[k] < smap.tendon_max_deg - DEG_PER_TICK:
-            notify(f"note: {leg}: the servo limits allow tendon angles {lo[k]:.1f}-{hi[k]:.1f} deg only "
-                   f"(tendon range 0-{smap.tendon_max_deg:g}): commands outside are clamped")
+            notify(
+                f"note: {leg}: the servo limits allow tendon angles {lo[k]:.1f}-{hi[k]:.1f} deg only "
+                f"(tendon range 0-{smap.tendon_max_deg:g}): commands outside are clamped"
+            )
     bus, odometry = make_io(cfg, robot, smap)
     stop = StopFlag()
     outcome = LoopOutcome.empty(hw.rate_hz)
@@ -105,12 +121,15 @@ def run_hardware(cfg: HardwareSlotConfig, out_dir: Path, resolved_yaml: str,
             odometry.start()
             first = wait_first(odometry, od.startup_timeout_s, lambda: stop.requested)
             if first is None:
-                return HardwareResult(EXIT_SIGNAL.get(stop.name, 130),
-                                      f"interrupted ({stop.name}) before the loop started: torque was never on",
-                                      None, None)
+                return HardwareResult(
+                    EXIT_SIGNAL.get(stop.name, 130),
+                    f"interrupted ({stop.name}) before the loop started: torque was never on",
+                    None,
+                    None,
+                )
             for note in notes + bus.configure(cfg.dry_run):
                 notify(f"note: {note}")
-            controller = Controller(cfg, robot)
+            controller = make_controller(cfg, robot)
             warm_up(controller, robot, first)
             log_path.parent.mkdir(parents=True, exist_ok=True)
             meta = {"config": {"yaml": resolved_yaml}, "run": _run_metadata(cfg, commit)}
@@ -119,9 +138,23 @@ def run_hardware(cfg: HardwareSlotConfig, out_dir: Path, resolved_yaml: str,
                 try:
                     if not cfg.dry_run and not stop.requested:
                         bus.enable()
-                    run_loop(cfg, robot, controller, bus, odometry, smap, rec, stop, rate_hz=hw.rate_hz,
-                             max_age_s=od.max_age_s, error_check_every=hw.error_check_every,
-                             duration=cfg.duration, dry_run=cfg.dry_run, outcome=outcome, notify=notify)
+                    run_loop(
+                        cfg,
+                        robot,
+                        controller,
+                        bus,
+                        odometry,
+                        smap,
+                        rec,
+                        stop,
+                        rate_hz=hw.rate_hz,
+                        max_age_s=od.max_age_s,
+                        error_check_every=hw.error_check_every,
+                        duration=cfg.duration,
+                        dry_run=cfg.dry_run,
+                        outcome=outcome,
+                        notify=notify,
+                    )
                 except SafetyStop as exc:
                     outcome.stop_reason, outcome.error = exc.reason, str(exc)
                 except BusError as exc:
@@ -131,8 +164,11 @@ def run_hardware(cfg: HardwareSlotConfig, out_dir: Path, resolved_yaml: str,
                 finally:
                     problems = bus.disable()  # first, before any bookkeeping
                     if problems:
-                        outcome.error = ((outcome.error + "; ") if outcome.error else "") + \
-                            "TORQUE MAY STILL BE ON: " + "; ".join(problems)
+                        outcome.error = (
+                            ((outcome.error + "; ") if outcome.error else "")
+                            + "TORQUE MAY STILL BE ON: "
+                            + "; ".join(problems)
+                        )
                     _write_summary(rec, outcome, controller, bus, odometry, time.perf_counter() - started)
         finally:
             bus.disable()
@@ -142,19 +178,30 @@ def run_hardware(cfg: HardwareSlotConfig, out_dir: Path, resolved_yaml: str,
     if outcome.error:
         return HardwareResult(EXIT_SAFETY_STOP, outcome.error, log_path, outcome)
     if outcome.stop_reason in EXIT_SIGNAL:
-        return HardwareResult(EXIT_SIGNAL[outcome.stop_reason],
-                              f"interrupted ({outcome.stop_reason}): torque off, the log is closed and readable",
-                              log_path, outcome)
+        return HardwareResult(
+            EXIT_SIGNAL[outcome.stop_reason],
+            f"interrupted ({outcome.stop_reason}): torque off, the log is closed and readable",
+            log_path,
+            outcome,
+        )
     return HardwareResult(EXIT_OK, "", log_path, outcome)
 
 
-def _write_summary(rec: Recorder, outcome: LoopOutcome, controller: Controller, bus: ServoBus,
-                   odometry: OdometrySource, wall: float) -> None:
+def _write_summary(
+    rec: Recorder, outcome: LoopOutcome, controller: Controller, bus: ServoBus, odometry: OdometrySource, wall: float
+) -> None:
     rec.add_metadata("loop", {k: _fmt(v) for k, v in outcome.stats.summary().items()})
-    rec.add_metadata("summary", {
-        "steps": str(outcome.steps), "infeasible_steps": str(controller.infeasible_steps),
-        "wall_time_s": f"{wall:.3f}", "stop_reason": outcome.stop_reason, "error": outcome.error or "",
-        "clamped_cycles": ",".join(str(int(c)) for c in outcome.clamped),
-        "comm_retries": str(outcome.comm_retries), "comm_errors": str(getattr(bus, "comm_errors", 0)),
-        "odometry_bad_messages": str(odometry.bad_messages)})
-
+    rec.add_metadata(
+        "summary",
+        {
+            "steps": str(outcome.steps),
+            "infeasible_steps": str(controller.infeasible_steps),
+            "wall_time_s": f"{wall:.3f}",
+            "stop_reason": outcome.stop_reason,
+            "error": outcome.error or "",
+            "clamped_cycles": ",".join(str(int(c)) for c in outcome.clamped),
+            "comm_retries": str(outcome.comm_retries),
+            "comm_errors": str(getattr(bus, "comm_errors", 0)),
+            "odometry_bad_messages": str(odometry.bad_messages),
+        },
+    )

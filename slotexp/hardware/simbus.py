@@ -1,12 +1,12 @@
 """Hardware-in-the-loop: the simulator stands in for the robot behind the servo-bus interface.
 
-:class:`SimWorld` is the plant (built by :func:`slotexp.simulation.make_plant`, so any
+:class:`SimWorld` is the plant (built by :func:`slotexp.plants.make_plant`, so any
 plant the config names, ``ideal`` today) plus four position-controlled servos that
 move toward their goals at the profile velocity, all advanced in wall-clock time.
 :class:`SimulatedBus` is its :class:`~.bus.ServoBus`; :class:`~.odometry.SimOdometry`
 reads its state. The control loop cannot tell it from the robot.
 
-The plant gets both forms of the servos' output (:meth:`slotexp.plant.Plant.step`):
+The plant gets the form of the servos' output it takes (:func:`slotexp.plants.command_for`):
 the tendon angles, which drive a soft-leg plant (``plant=cosserat``, whose own servo
 model then adds its short lag), and the normal forces eq. 11 predicts for them
 (inverse map, :func:`slotexp.actuation.normal_force`), which is all the ideal plant
@@ -19,16 +19,15 @@ still: nothing is commanded, nothing moves.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
 from ..actuation import normal_force, tendon_angle_deg
 from ..config import SlotConfig
-from ..plant import Plant, nominal_state
+from ..plants import Plant, command_for, make_plant, nominal_state
 from ..robot import RobotModel
-from ..simulation import make_plant
 from . import xl430 as X
 from .bus import ServoReadings
 from .mapping import ServoMap
@@ -39,17 +38,23 @@ MAX_STEP_S = 0.1  # a longer gap (a stalled loop) is simulated as this much time
 class SimWorld:
     """Plant + servos in wall-clock time."""
 
-    def __init__(self, cfg: SlotConfig, robot: RobotModel, smap: ServoMap, profile_velocity_rpm: float,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        cfg: SlotConfig,
+        robot: RobotModel,
+        smap: ServoMap,
+        profile_velocity_rpm: float,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.plant: Plant = make_plant(cfg, robot, nominal_state(robot))
         # Compile the plant's numba kernels now, on a throwaway copy: compiling inside the
         # timed loop stalls it past odometry.max_age_s on a machine without a warm cache.
-        make_plant(cfg, robot, nominal_state(robot)).step(np.zeros((4, 3)), cfg.sim.dt, None, np.zeros(4))
+        warm = make_plant(cfg, robot, nominal_state(robot))
+        warm.step(command_for(warm.command_type, np.zeros((4, 3)), np.zeros(4)), cfg.sim.dt)
         self.smap = smap
         self.actuation = cfg.robot.actuation
         self.clock = clock
-        stand = tendon_angle_deg(np.full(4, robot.mass * cfg.sim.gravity / 4.0), self.actuation,
-                                 smap.tendon_max_deg)
+        stand = tendon_angle_deg(np.full(4, robot.mass * cfg.sim.gravity / 4.0), self.actuation, smap.tendon_max_deg)
         self.goal, _ = smap.to_ticks(stand)  # the servos start where a standing robot has them
         self.position = self.goal.astype(float)
         self.velocity = np.zeros(4)
@@ -83,7 +88,7 @@ class SimWorld:
         step = np.clip(self.goal - self.position, -self.max_ticks_per_s * dt, self.max_ticks_per_s * dt)
         self.position += step
         self.velocity = step / dt
-        self.plant.step(self.forces(), dt, None, self.tendon_deg())
+        self.plant.step(command_for(self.plant.command_type, self.forces(), self.tendon_deg()), dt)
         self.sim_time += dt
 
 
@@ -107,9 +112,11 @@ class SimulatedBus:
     def read(self) -> ServoReadings:
         self.world.sync()
         rpm = self.world.velocity / X.TICKS_PER_REV * 60.0
-        return ServoReadings(position=np.rint(self.world.position).astype(np.int64),
-                             velocity=np.rint(rpm / X.RPM_PER_VELOCITY_UNIT).astype(np.int64),
-                             load=np.zeros(4, dtype=np.int64))
+        return ServoReadings(
+            position=np.rint(self.world.position).astype(np.int64),
+            velocity=np.rint(rpm / X.RPM_PER_VELOCITY_UNIT).astype(np.int64),
+            load=np.zeros(4, dtype=np.int64),
+        )
 
     def write_goals(self, ticks: np.ndarray) -> int:
         self.world.sync()

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -77,12 +77,19 @@ class LoopStats:
 
     def summary(self) -> dict[str, float]:
         n = len(self.starts)
-        out: dict[str, float] = {"cycles": float(n), "target_rate_hz": 1.0 / self.period,
-                                 "overruns": float(self.overruns), "skipped_deadlines": float(self.skipped)}
+        out: dict[str, float] = {
+            "cycles": float(n),
+            "target_rate_hz": 1.0 / self.period,
+            "overruns": float(self.overruns),
+            "skipped_deadlines": float(self.skipped),
+        }
         span = self.starts[-1] - self.starts[0] if n > 1 else 0.0
         out["achieved_rate_hz"] = (n - 1) / span if span > 0 else float("nan")
-        for name, values in (("cycle_ms", self.cycle_times), ("lateness_ms", self.lateness),
-                             ("odometry_age_ms", self.odometry_ages)):
+        for name, values in (
+            ("cycle_ms", self.cycle_times),
+            ("lateness_ms", self.lateness),
+            ("odometry_age_ms", self.odometry_ages),
+        ):
             arr = np.asarray(values, dtype=float) * 1e3
             out[f"{name}_median"] = float(np.median(arr)) if n else float("nan")
             out[f"{name}_p99"] = float(np.percentile(arr, 99)) if n else float("nan")
@@ -95,6 +102,8 @@ class LoopStats:
 
     def one_line(self) -> str:
         s = self.summary()
-        return (f"{int(s['cycles'])} cycles at {s['achieved_rate_hz']:.2f} Hz (target {s['target_rate_hz']:g}), "
-                f"{int(s['overruns'])} overruns, cycle time median {s['cycle_ms_median']:.1f} ms, "
-                f"p99 {s['cycle_ms_p99']:.1f} ms")
+        return (
+            f"{int(s['cycles'])} cycles at {s['achieved_rate_hz']:.2f} Hz (target {s['target_rate_hz']:g}), "
+            f"{int(s['overruns'])} overruns, cycle time median {s['cycle_ms_median']:.1f} ms, "
+            f"p99 {s['cycle_ms_p99']:.1f} ms"
+        )

@@ -1,0 +1,91 @@
+"""What the gait controllers share: a gait from the library on a phase clock, and its contact plan.
+
+Each MPC step the gait command (body-frame velocity and yaw rate) becomes a mix of
+library primitives (:meth:`slotexp.locomotion.library.GaitLibrary.command`); the
+tendon angles are that mix at the clock's phase, held for the step, and the clock
+advances by the style's frequency. The contact plan the MPC sees over its horizon
+comes from the same mix: a leg is in stance while its tendon is above its cycle
+mean (it presses harder and tends to stick, friction ``gait.mu_stance``), in
+swing while it is below (it slides, ``gait.mu_swing``). The reference positions
+follow the desired path from where the robot started, so position weights in Q
+bring the robot back to its path after a push.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..actuation import tendon_angle_deg
+from ..config import SlotConfig
+from ..errors import ConfigError
+from ..gait import contact_plan
+from ..locomotion.library import GaitCommand, GaitLibrary
+from ..locomotion.primitives import mix, stance
+from ..reference import reference
+from ..robot import RobotModel
+from . import ControlStep
+from ._base import MpcController
+
+
+class GaitController(MpcController):
+    """A library gait driven by a velocity and yaw-rate command; subclasses decide how the command moves."""
+
+    def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
+        super().__init__(cfg, robot)
+        library = cfg.controller.library
+        if cfg.gait.style not in library:
+            raise ConfigError(
+                f"gait.style = {cfg.gait.style!r} is not in the gait library: choose one of "
+                f"{', '.join(library) or '(none)'} (conf/library/)"
+            )
+        self.top = cfg.robot.leg.tendon_max_deg
+        self.standing = float(tendon_angle_deg(np.array([self.weight / 4.0]), cfg.robot.actuation, self.top)[0])
+        self.library = GaitLibrary.from_config(library[cfg.gait.style], self.standing, self.top)
+        self.style = self.library.style
+        self.psi = 0.0  # the gait clock's phase, cycles
+        self.velocity = np.asarray(cfg.gait.velocity, dtype=float).copy()  # body-frame gait command, m/s
+        self.yaw_rate = float(np.degrees(cfg.gait.yaw_rate))  # deg/s
+        self.origin: np.ndarray | None = None
+        self.command: GaitCommand | None = None
+
+    def step(self, t: float, x: np.ndarray, feet: np.ndarray) -> ControlStep:
+        if self.origin is None:
+            self.origin = x[3:5].copy()
+        cfg = self.cfg
+        horizon = cfg.mpc.horizon
+        self.command = self.library.command(self.velocity, self.yaw_rate)
+        dpsi = self.style.frequency_hz * self.period
+        psi = self.psi + dpsi * np.arange(horizon)
+        plan = contact_plan(
+            stance(self.style, self.command.parts, psi, self.top), cfg.gait, cfg.mpc.f_min_stance, cfg.mpc.f_max
+        )
+        x_ref = reference(x, t, cfg.gait, self.period, horizon, path_origin=self.origin)
+        forces, solution, violations = self.solve(x, x_ref, feet, plan)
+        self.command_velocity, self.command_yaw_rate = self.velocity.copy(), self.yaw_rate  # what this step used
+        gait = mix(self.style, self.command.parts, self.psi, self.top)
+        tendon = gait + self.adjust(x, feet, forces, solution)
+        self.psi += dpsi
+        self.steps += 1
+        telemetry = {
+            "phase": self.psi - dpsi,
+            "velocity_command": self.command_velocity,
+            "yaw_rate_command_dps": self.command_yaw_rate,
+            "speed_fraction": self.command.speed_fraction,
+            "yaw_fraction": self.command.yaw_fraction,
+            "max_speed": self.command.max_speed,
+            "gait_deg": gait,
+        }
+        return ControlStep(
+            forces=forces,
+            tendon_deg=np.clip(tendon, 0.0, self.top),
+            solution=solution,
+            plan=plan,
+            x_ref=x_ref,
+            fallback=not solution.success,
+            violations=violations,
+            telemetry=telemetry,
+        )
+
+    def adjust(self, x: np.ndarray, feet: np.ndarray, forces: np.ndarray, solution) -> np.ndarray:
+        """Tendon angle offsets (4,) on top of the gait, and the command's update; none here."""
+        return np.zeros(4)

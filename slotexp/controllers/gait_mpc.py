@@ -1,0 +1,67 @@
+"""``controller=gait_mpc``: the MPC's plan steers a library gait and sets each leg's base angle.
+
+The soft legs cannot push the body sideways at will: a foot only moves along its
+leg, and horizontal motion comes from the gait's stick-slip. What the MPC's plan
+asks for is used where the legs can give it:
+
+- **Horizontal forces and yaw moment.** The plan's first forces give the body a
+  planned acceleration a (and yaw acceleration alpha); each step the gait command
+  moves by a fraction of the velocity change the MPC plans,
+  ``v_cmd += velocity_gain * T * a`` (body frame) and
+  ``yaw_cmd += yaw_gain * T * alpha``, starting from the reference and clipped to
+  what the library measured (its envelope). The gait is a velocity source, so
+  accumulating the planned changes is integral action on the MPC's own velocity
+  and position errors: a gait slower than the library says, a heading that drifts
+  or a push off the path keep the MPC planning forces, and the command moves until
+  they vanish.
+- **Normal forces.** Each leg's tendon is offset from the gait by
+  ``(f_z - m g / 4) / a`` with ``a`` the force-to-tendon map's slope (eq. 11,
+  fitted to the leg by ``experiment=calibrate``; ``experiment=legmap`` gives the
+  same slope at every root height): height and attitude as in the paper. The part
+  common to the four legs (height) is applied at once; the legs' differences
+  (attitude) are averaged over one gait cycle. The gait rocks the body within each
+  cycle, and that rocking is how it walks (the leg that presses harder sticks): a
+  controller that flattened it step by step would stop the robot (measured: 20 ->
+  16 mm/s at a 20 mm/s command), so the MPC corrects the cycle's mean attitude.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from ..body import rot_z
+from ..config import SlotConfig
+from ..robot import RobotModel
+from . import CONTROLLERS
+from ._gait import GaitController
+
+MAX_OFFSET_DEG = 30.0  # the normal-force correction stays a correction of the gait
+
+
+@CONTROLLERS.register()
+class GaitMpcController(GaitController):
+    def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
+        super().__init__(cfg, robot)
+        # the legs' differences in normal force, averaged over one gait cycle (see the module docstring)
+        self.spread: deque[np.ndarray] = deque(maxlen=max(1, round(1.0 / (self.style.frequency_hz * self.period))))
+
+    def adjust(self, x: np.ndarray, feet: np.ndarray, forces: np.ndarray, solution) -> np.ndarray:
+        ctrl = self.cfg.controller
+        total = forces.sum(axis=0)
+        accel_body = (rot_z(x[2]).T @ np.array([total[0], total[1], 0.0]))[0:2] / self.robot.mass
+        lever = feet - x[3:6]
+        torque_z = float(np.sum(lever[:, 0] * forces[:, 1] - lever[:, 1] * forces[:, 0]))
+        yaw_accel = np.degrees(torque_z / self.robot.inertia_body[2, 2])
+        velocity = self.velocity + ctrl.velocity_gain * self.period * accel_body
+        speed = float(np.hypot(*velocity))
+        top = self.library.max_speed(float(np.degrees(np.arctan2(velocity[1], velocity[0]))))
+        self.velocity = velocity * (min(1.0, top / speed) if speed > 0 else 1.0)
+        limit = self.library.max_yaw_rate_dps
+        self.yaw_rate = float(np.clip(self.yaw_rate + ctrl.yaw_gain * self.period * yaw_accel, -limit, limit))
+        offsets = (forces[:, 2] - self.weight / 4.0) / self.cfg.robot.actuation.slope_n_per_deg
+        common = float(offsets.mean())
+        self.spread.append(offsets - common)
+        per_leg = np.mean(self.spread, axis=0)
+        return np.clip(common + per_leg, -MAX_OFFSET_DEG, MAX_OFFSET_DEG)

@@ -1,0 +1,108 @@
+"""Plants the controller drives: the interface, the commands, and the registry (``plant=<name>``).
+
+A plant advances one MPC period under a held command and reports the MPC state
+and where its feet are. What it is commanded with depends on what it is: the
+ideal plant takes ground-reaction forces (:class:`ForceCommand`), the soft-leg
+plant takes tendon angles and makes its own ground forces (:class:`TendonCommand`).
+Each plant names its command type, and :func:`command_for` builds it from the
+controller's outputs, so the closed loop never passes a value a plant ignores.
+
+A new plant is one module here, named after the plant, whose class is decorated
+with ``@PLANTS.register()`` and has ``from_config(cfg, robot, x0)``, plus its
+``conf/plant/<name>.yaml``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Protocol
+
+import numpy as np
+
+from ..config import SlotConfig
+from ..registry import Registry
+from ..robot import RobotModel
+
+STATE_NAMES = ("roll", "pitch", "yaw", "x", "y", "z", "wx", "wy", "wz", "vx", "vy", "vz")
+
+
+@dataclass(frozen=True)
+class ForceCommand:
+    """Ground-reaction forces (4, 3), world frame, held over the period."""
+
+    forces: np.ndarray
+
+
+@dataclass(frozen=True)
+class TendonCommand:
+    """Servo (tendon) angle commands (4,), degrees, held over the period."""
+
+    tendon_deg: np.ndarray
+
+
+Command = ForceCommand | TendonCommand
+
+
+def command_for(command_type: type[Command], forces: np.ndarray, tendon_deg: np.ndarray) -> Command:
+    """The command a plant of ``command_type`` takes, from the controller's two outputs."""
+    if command_type is ForceCommand:
+        return ForceCommand(np.asarray(forces, dtype=float))
+    return TendonCommand(np.asarray(tendon_deg, dtype=float))
+
+
+class Plant(Protocol):
+    time: float
+    command_type: ClassVar[type[Command]]
+
+    @classmethod
+    def from_config(cls, cfg: SlotConfig, robot: RobotModel, x0: np.ndarray) -> Plant:
+        """The plant ``cfg`` describes, starting at MPC state ``x0``."""
+
+    def state(self) -> np.ndarray:
+        """MPC state [roll, pitch, yaw, p, omega_world, v] (12,)."""
+
+    def feet(self) -> np.ndarray:
+        """World positions (4, 3) of the points the ground forces act on."""
+
+    def pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Torso position (3,) and attitude quaternion (w, x, y, z)."""
+
+    def markers(self) -> dict[str, np.ndarray]:
+        """Named world points to log and validate against (at least ``com``)."""
+
+    def step(self, command: Command, period: float, external_force: np.ndarray | None = None) -> None:
+        """Advance ``period`` seconds under ``command`` (of :attr:`command_type`), held constant."""
+
+    def telemetry(self) -> dict[str, dict]:
+        """Plant-specific per-step log messages (topic -> message); may be empty."""
+
+    def apply_impulse(self, linear: np.ndarray, angular: np.ndarray) -> None:
+        """Instantaneous world-frame push (N s) and angular impulse about the CoM (N m s)."""
+
+
+PLANTS: Registry[type[Plant]] = Registry(__name__, "plant")
+
+
+def make_plant(cfg: SlotConfig, robot: RobotModel, x0: np.ndarray) -> Plant:
+    """The plant ``cfg.plant.name`` selects."""
+    return PLANTS.get(cfg.plant.name).from_config(cfg, robot, x0)
+
+
+def nominal_state(robot: RobotModel) -> np.ndarray:
+    """At rest at the stance height, level, heading +x."""
+    x = np.zeros(12)
+    x[5] = robot.stance_height
+    return x
+
+
+__all__ = [
+    "Plant",
+    "PLANTS",
+    "Command",
+    "ForceCommand",
+    "TendonCommand",
+    "command_for",
+    "make_plant",
+    "nominal_state",
+    "STATE_NAMES",
+]

@@ -1,0 +1,614 @@
+"""Time stepping of one leg: root boundary, two integrators, and the leg as an object (numba).
+
+The root (node 0 and element 0) follows prescribed kinematics ``root`` =
+[s, z, vs, vz, theta, omega], held over a step; the force and moment the leg
+exerts on it are returned in ``out`` as the reaction on the torso. Two schemes
+advance the rod under its elasticity (:mod:`slotexp.soft.rod`) and loads
+(:mod:`slotexp.soft.loads`):
+
+- symplectic (semi-implicit) Euler: v' = v + h M^-1 F(x), x' = x + h v', with the
+  damping, contact damping and friction implicit; cheap per step but bounded by
+  the rod's stiffest mode, h < 2 / omega_max (:func:`stable_dt`);
+- linearly implicit Euler: (M - h^2 K - h C) v' = M v + h F - h C v with K and C
+  the exact Jacobians of every load at the start of the step, solved by a banded
+  LU (the tendon's rank-one term by Sherman-Morrison); stable at steps set by
+  accuracy, not by the stiffest mode.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ConfigError, DivergenceError
+from ..jit import njit
+from .loads import (
+    conservative_forces,
+    contact_linearised,
+    contact_proximal,
+    damping_reaction,
+    dissipative_params,
+    root_reaction,
+    tendon_jacobian,
+    tendon_length,
+)
+from .params import (
+    O_DIV,
+    O_F,
+    O_FX,
+    O_FZ,
+    O_M,
+    O_N,
+    O_T,
+    OUT,
+    P_G,
+    P_GROUND,
+    P_K,
+    P_PAPER,
+    P_TFX,
+    P_TFZ,
+    P_TK,
+    P_TM,
+    P_TMAX,
+    P_TOFF,
+)
+from .rod import (
+    LegModel,
+    banded_factor,
+    banded_substitute,
+    directors,
+    elastic_energy,
+    elastic_hessian_band,
+    elastic_hessian_cs,
+)
+
+
+@njit(cache=True)
+def _set_root(pos, vel, root):
+    pos[0, 0] = root[0]
+    pos[0, 1] = root[1]
+    vel[0, 0] = root[2]
+    vel[0, 1] = root[3]
+
+
+@njit(cache=True)
+def _finish_step(pos, tension, total_n, total_f, out):
+    """Report the step's tension and contact totals; flag a blown-up state (non-finite, or the
+    tip 100 m away) so the caller can stop with the step and the stability limit named."""
+    out[O_T] = tension
+    out[O_N] = total_n
+    out[O_F] = total_f
+    tip = pos[pos.shape[0] - 1]
+    if not (np.isfinite(tip[0]) and np.isfinite(tip[1]) and abs(tip[0]) < 100.0 and abs(tip[1]) < 100.0):
+        out[O_DIV] = 1.0
+
+
+@njit(cache=True)
+def rotate_directors(cth, sth, theta, omega, h):
+    """theta += h omega, and turn the directors by the same angle without trig calls.
+
+    Taylor series to delta^7 are exact to round-off for |delta| < 0.05 rad per step
+    (far beyond any stable step); larger turns fall back to cos/sin.
+    """
+    for e in range(theta.shape[0]):
+        d = h * omega[e]
+        theta[e] += d
+        if abs(d) < 0.05:
+            d2 = d * d
+            cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 / 720.0))
+            sd = d * (1.0 - d2 * (1.0 / 6.0 - d2 * (1.0 / 120.0 - d2 / 5040.0)))
+            c = cth[e]
+            cth[e] = c * cd - sth[e] * sd
+            sth[e] = sth[e] * cd + c * sd
+        else:
+            cth[e] = np.cos(theta[e])
+            sth[e] = np.sin(theta[e])
+
+
+@njit(cache=True)
+def symplectic_once(
+    pos,
+    vel,
+    theta,
+    omega,
+    rest_pos,
+    l0,
+    voronoi,
+    dtheta0,
+    ea,
+    ga,
+    ei,
+    mass,
+    inertia,
+    inv_mass,
+    inv_inertia,
+    par,
+    free_length,
+    root,
+    h,
+    normal,
+    out,
+    force,
+    moment,
+    cth,
+    sth,
+):
+    """One symplectic (semi-implicit) Euler step with implicit damping, contact and friction.
+
+    ``root`` = [s, z, vs, vz, theta, omega] of the root over the step; ``free_length``
+    is the tendon's L_free over the step (state, not in ``par``: the servo changes it).
+    ``cth``/``sth`` must hold the current directors (kept current here). ``normal`` (N,)
+    receives each node's contact normal force; ``force``/``moment`` are work arrays.
+    """
+    n = pos.shape[0]
+    n_el = theta.shape[0]
+    c, k_c, d_c, mu, v_eps, ground = dissipative_params(par)
+    _set_root(pos, vel, root)
+    tension, m_root = conservative_forces(
+        pos,
+        theta,
+        root[4],
+        l0,
+        voronoi,
+        dtheta0,
+        ea,
+        ga,
+        ei,
+        mass,
+        par,
+        free_length,
+        force,
+        moment,
+        cth,
+        sth,
+        rest_pos,
+        False,
+    )
+    root_reaction(force, m_root, mass, par, out)
+    damp = 1.0 / (1.0 + h * c)
+    hc = h * c
+    total_n = 0.0
+    total_f = 0.0
+    rx = 0.0
+    rz = 0.0
+    for i in range(1, n):
+        hm = h * inv_mass[i]
+        vx = (vel[i, 0] + hm * force[i, 0] + hc * root[2]) * damp
+        vz = (vel[i, 1] + hm * force[i, 1] + hc * root[3]) * damp
+        nrm = 0.0
+        if ground and pos[i, 1] < 0.0:
+            vx, vz, nrm, fric = contact_proximal(
+                vx, vz, vel[i, 1], force[i, 1], -pos[i, 1], hm, hc, damp, root[3], k_c, d_c, mu, v_eps
+            )
+            total_f += fric
+        normal[i] = nrm
+        total_n += nrm
+        vel[i, 0] = vx
+        vel[i, 1] = vz
+        rx += mass[i] * (vx - root[2])
+        rz += mass[i] * (vz - root[3])
+        pos[i, 0] += h * vx
+        pos[i, 1] += h * vz
+    rm = 0.0
+    for e in range(n_el):
+        w = (omega[e] + h * inv_inertia[e] * moment[e] + hc * root[5]) * damp
+        omega[e] = w
+        rm += inertia[e] * (w - root[5])
+    # the relative-velocity damping acts between leg and torso: its reaction goes to the root
+    out[O_FX] += c * rx
+    out[O_FZ] += c * rz
+    out[O_M] += c * rm
+    rotate_directors(cth, sth, theta, omega, h)
+    _finish_step(pos, tension, total_n, total_f, out)
+
+
+@njit(cache=True)
+def step_symplectic(
+    pos,
+    vel,
+    theta,
+    omega,
+    rest_pos,
+    l0,
+    voronoi,
+    dtheta0,
+    ea,
+    ga,
+    ei,
+    mass,
+    inertia,
+    par,
+    free_length,
+    root,
+    h,
+    n_steps,
+    normal,
+    out,
+):
+    """``n_steps`` of :func:`symplectic_once` with the root held."""
+    force = np.zeros(pos.shape)
+    moment = np.zeros(theta.shape[0])
+    cth = np.zeros(theta.shape[0])
+    sth = np.zeros(theta.shape[0])
+    directors(theta, cth, sth)
+    inv_mass = 1.0 / mass
+    inv_inertia = 1.0 / inertia
+    for _ in range(n_steps):
+        symplectic_once(
+            pos,
+            vel,
+            theta,
+            omega,
+            rest_pos,
+            l0,
+            voronoi,
+            dtheta0,
+            ea,
+            ga,
+            ei,
+            mass,
+            inertia,
+            inv_mass,
+            inv_inertia,
+            par,
+            free_length,
+            root,
+            h,
+            normal,
+            out,
+            force,
+            moment,
+            cth,
+            sth,
+        )
+        if out[O_DIV] > 0.0:
+            return
+    _set_root(pos, vel, root)
+
+
+@njit(cache=True)
+def implicit_once(
+    pos,
+    vel,
+    theta,
+    omega,
+    rest_pos,
+    l0,
+    voronoi,
+    dtheta0,
+    ea,
+    ga,
+    ei,
+    mass,
+    inertia,
+    par,
+    free_length,
+    root,
+    h,
+    normal,
+    out,
+    force,
+    moment,
+    band,
+    rhs,
+    grad_l,
+    cth,
+    sth,
+    work,
+):
+    """One linearly implicit Euler step: (M - h^2 K - h C) v' = M v + h F - h C v.
+
+    Arguments as :func:`symplectic_once`; ``band``, ``rhs``, ``grad_l``, ``work`` are work arrays.
+
+    K and C are the exact Jacobians of every load (elasticity, tendon, contact,
+    friction, damping) at the start of the step; the tendon adds a rank-one term,
+    handled by Sherman-Morrison around the banded solve. The root node's rows are
+    rows of the identity with the prescribed velocity on the right.
+    """
+    n = pos.shape[0]
+    n_el = theta.shape[0]
+    nd = 3 * n - 1
+    c, k_c, d_c, mu, v_eps, ground = dissipative_params(par)
+    h2 = h * h
+    _set_root(pos, vel, root)
+    tension, m_root = conservative_forces(
+        pos,
+        theta,
+        root[4],
+        l0,
+        voronoi,
+        dtheta0,
+        ea,
+        ga,
+        ei,
+        mass,
+        par,
+        free_length,
+        force,
+        moment,
+        cth,
+        sth,
+        rest_pos,
+        True,
+    )
+    root_reaction(force, m_root, mass, par, out)
+    band[:, :] = 0.0
+    # -h^2 K_elastic = +h^2 H
+    elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, band, h2)
+    # tendon: band part T * hess(L), rank-one part k_t grad L grad L^T
+    taut = tension > 0.0 and tension < par[P_TMAX]
+    grad_l[:] = 0.0
+    if tension > 0.0:
+        tendon_jacobian(pos, cth, sth, tension, par, h2, band, grad_l)
+    # the root node's rows of h^2 (elastic + tendon) Hessian: the reaction must use the
+    # same linearised force the leg feels over the step
+    row0 = band[0].copy()
+    row1 = band[1].copy()
+    # mass, damping, and the right-hand side M v + h F (damping enters implicitly)
+    for i in range(n):
+        for comp in range(2):
+            d = 3 * i + comp
+            m = mass[i]
+            band[d, 4] += m * (1.0 + h * c)
+            rhs[d] = m * vel[i, comp] + h * (force[i, comp] + c * m * root[2 + comp])
+    for e in range(n_el):
+        d = 3 * e + 2
+        band[d, 4] += inertia[e] * (1.0 + h * c)
+        rhs[d] = inertia[e] * omega[e] + h * (moment[e] + c * inertia[e] * root[5])
+    # contact and friction, linearised
+    total_n = 0.0
+    total_f = 0.0
+    for i in range(1, n):
+        normal[i] = 0.0
+        if ground and pos[i, 1] < 0.0:
+            nrm, fx = contact_linearised(i, -pos[i, 1], vel[i, 0], vel[i, 1], h, k_c, d_c, mu, v_eps, band, rhs)
+            normal[i] = nrm
+            total_n += nrm
+            total_f += fx
+    # the clamp angle moves at root[5] over the step: its spring acts on theta_0
+    rhs[2] += h2 * ei[0] / voronoi[0] * root[5]
+    # prescribed root node: identity rows
+    for d in range(2):
+        for k in range(9):
+            band[d, k] = 0.0
+        band[d, 4] = 1.0
+    rhs[0] = root[2]
+    rhs[1] = root[3]
+    if taut:
+        # the tension also changes as the root angle turns over the step
+        shift = h2 * par[P_TK] * par[P_TOFF] * root[5]
+        for d in range(2, nd):
+            rhs[d] += shift * grad_l[d]
+        # Sherman-Morrison: (A + u g^T) x = rhs with u = h^2 k_t g on the free rows
+        banded_factor(band)
+        banded_substitute(band, rhs)
+        coef = h2 * par[P_TK]
+        work[0] = 0.0
+        work[1] = 0.0
+        for d in range(2, nd):
+            work[d] = coef * grad_l[d]
+        banded_substitute(band, work)
+        gy = 0.0
+        gz = 0.0
+        for d in range(nd):
+            gy += grad_l[d] * rhs[d]
+            gz += grad_l[d] * work[d]
+        ratio = gy / (1.0 + gz)
+        for d in range(nd):
+            rhs[d] -= ratio * work[d]
+    else:
+        banded_factor(band)
+        banded_substitute(band, rhs)
+    x = rhs
+    for i in range(n):
+        vel[i, 0] = x[3 * i]
+        vel[i, 1] = x[3 * i + 1]
+        pos[i, 0] += h * vel[i, 0]
+        pos[i, 1] += h * vel[i, 1]
+    for e in range(n_el):
+        omega[e] = x[3 * e + 2]
+        theta[e] += h * omega[e]
+    # reaction on the root, consistent with the implicit step (momentum is exchanged exactly)
+    d0 = 0.0
+    d1 = 0.0
+    for k in range(4, 9):
+        d0 += row0[k] * x[k - 4]
+    for k in range(3, 9):
+        d1 += row1[k] * x[k - 3]
+    out[O_FX] -= d0 / h
+    out[O_FZ] -= d1 / h
+    tension_end = tension
+    if taut:
+        gx = 0.0
+        for d in range(nd):
+            gx += grad_l[d] * x[d]
+        out[O_FX] -= h * par[P_TK] * grad_l[0] * gx
+        out[O_FZ] -= h * par[P_TK] * grad_l[1] * gx
+        tension_end = tension + par[P_TK] * h * (gx - par[P_TOFF] * root[5])
+    k0 = ei[0] / voronoi[0]
+    out[O_M] = k0 * (theta[0] - root[4] - h * root[5])
+    if tension > 0.0:
+        out[O_M] += tension_end * par[P_TOFF]
+    damping_reaction(vel, omega, mass, inertia, par, root, out)
+    _finish_step(pos, tension, total_n, total_f, out)
+
+
+@njit(cache=True)
+def step_implicit(
+    pos,
+    vel,
+    theta,
+    omega,
+    rest_pos,
+    l0,
+    voronoi,
+    dtheta0,
+    ea,
+    ga,
+    ei,
+    mass,
+    inertia,
+    par,
+    free_length,
+    root,
+    h,
+    n_steps,
+    normal,
+    out,
+):
+    """``n_steps`` of :func:`implicit_once` with the root held."""
+    nd = 3 * pos.shape[0] - 1
+    force = np.zeros(pos.shape)
+    moment = np.zeros(theta.shape[0])
+    band = np.zeros((nd, 9))
+    rhs = np.zeros(nd)
+    grad_l = np.zeros(nd)
+    cth = np.zeros(theta.shape[0])
+    sth = np.zeros(theta.shape[0])
+    work = np.zeros(nd)
+    for _ in range(n_steps):
+        implicit_once(
+            pos,
+            vel,
+            theta,
+            omega,
+            rest_pos,
+            l0,
+            voronoi,
+            dtheta0,
+            ea,
+            ga,
+            ei,
+            mass,
+            inertia,
+            par,
+            free_length,
+            root,
+            h,
+            normal,
+            out,
+            force,
+            moment,
+            band,
+            rhs,
+            grad_l,
+            cth,
+            sth,
+            work,
+        )
+        if out[O_DIV] > 0.0:
+            return
+    _set_root(pos, vel, root)
+
+
+def stable_dt(model: LegModel, k_contact: float = 0.0) -> float:
+    """Largest stable symplectic-Euler step: 2 / omega_max of M^-1 K at rest (contact on every node).
+
+    Contact damping is implicit in both integrators, so it does not limit the step.
+    """
+    from scipy.linalg import eigh
+
+    n = model.n_nodes
+    nd = 3 * n - 1
+    band = np.zeros((nd, 9))
+    elastic_hessian_band(
+        model.rest_pos,
+        model.rest_theta,
+        model.rest_theta[0],
+        model.l0,
+        model.voronoi,
+        model.dtheta0,
+        model.ea,
+        model.ga,
+        model.ei,
+        band,
+        1.0,
+    )
+    k = np.zeros((nd, nd))
+    for i in range(nd):
+        for j in range(max(0, i - 4), min(nd, i + 5)):
+            k[i, j] = band[i, 4 + j - i]
+    m = np.zeros(nd)
+    m[0::3] = model.mass
+    m[1::3] = model.mass
+    m[2::3] = model.inertia
+    for i in range(n):
+        k[3 * i + 1, 3 * i + 1] += k_contact
+    free = np.arange(2, nd)  # the root node is clamped; its angle is the clamp vertex's reference
+    lam = eigh(k[np.ix_(free, free)], np.diag(m[free]), eigvals_only=True)
+    return float(2.0 / np.sqrt(lam.max()))
+
+
+class LegSim:
+    """One leg's state and parameters, stepped by either integrator.
+
+    ``free0`` is the tendon's free length with the servo at zero (infinite: no
+    tendon); ``free_length``, the free length now, is state the caller winds in or
+    out between steps (:func:`slotexp.soft.statics.set_tendon`).
+    """
+
+    def __init__(self, model: LegModel, par: np.ndarray, free0: float = np.inf) -> None:
+        self.model = model
+        self.par = np.asarray(par, dtype=float)
+        self.free0 = float(free0)
+        self.free_length = self.free0
+        self.pos = model.rest_pos.copy()
+        self.vel = np.zeros_like(self.pos)
+        self.theta = model.rest_theta.copy()
+        self.omega = np.zeros_like(self.theta)
+        self.root = np.array([self.pos[0, 0], self.pos[0, 1], 0.0, 0.0, self.theta[0], 0.0])
+        self.normal = np.zeros(model.n_nodes)
+        self.out = np.zeros(len(OUT))
+        self.time = 0.0
+
+    def step(self, h: float, n_steps: int = 1, integrator: str = "symplectic") -> None:
+        kernel = step_implicit if integrator == "implicit" else step_symplectic
+        m = self.model
+        if integrator == "implicit" and self.par[P_PAPER] > 0.5:
+            raise ConfigError("the paper's leg model has no Jacobian: use the symplectic integrator with it")
+        kernel(
+            self.pos,
+            self.vel,
+            self.theta,
+            self.omega,
+            m.rest_pos,
+            m.l0,
+            m.voronoi,
+            m.dtheta0,
+            m.ea,
+            m.ga,
+            m.ei,
+            m.mass,
+            m.inertia,
+            self.par,
+            float(self.free_length),
+            self.root,
+            h,
+            n_steps,
+            self.normal,
+            self.out,
+        )
+        self.time += h * n_steps
+        if self.out[O_DIV] > 0.0:
+            limit = stable_dt(m, self.par[P_K] if self.par[P_GROUND] > 0.5 else 0.0)
+            raise DivergenceError(
+                f"the leg simulation diverged at t = {self.time:.4g} s with leg_load.dt = {h:.3g} s "
+                f"({integrator}); the explicit stability limit for this leg is about {limit:.3g} s: "
+                f"lower leg_load.dt or use leg_load.integrator=implicit"
+            )
+
+    def energy(self) -> float:
+        """Kinetic + elastic + gravitational + tendon energy (no contact), J."""
+        m = self.model
+        kin = 0.5 * np.sum(m.mass[:, None] * self.vel**2) + 0.5 * np.sum(m.inertia * self.omega**2)
+        el = elastic_energy(self.pos, self.theta, self.root[4], m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei)
+        grav = self.par[P_G] * np.sum(m.mass * self.pos[:, 1])
+        stretch = max(0.0, tendon_length(self.pos, self.theta, self.root[4], self.par) - self.free_length)
+        tendon = 0.5 * self.par[P_TK] * stretch**2
+        work = -(
+            self.par[P_TFX] * self.pos[-1, 0] + self.par[P_TFZ] * self.pos[-1, 1] + self.par[P_TM] * self.theta[-1]
+        )
+        return float(kin + el + grav + tendon + work)
+
+    @property
+    def tip(self) -> np.ndarray:
+        return self.pos[-1].copy()

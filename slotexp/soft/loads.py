@@ -1,0 +1,266 @@
+"""Loads on one leg besides its elasticity (:mod:`slotexp.soft.rod`), as numba kernels.
+
+- gravity on the node masses;
+- viscous damping of each node's velocity (and each element's angular velocity)
+  relative to the root, rate ``c`` (1/s), treated implicitly; it acts between leg
+  and torso, so its reaction goes to the root;
+- penalty ground contact at every node below z = 0, N = max(0, -k z - d dz/dt),
+  with the damping term implicit so it stays stable at any step;
+- regularised Coulomb friction along the leg plane, F = -mu N sat(v / v_eps), on the
+  actual normal force N, solved implicitly (a proximal step, unconditionally stable);
+- the tendon: a cable at ``offset`` below the centreline over the proximal
+  elements 0..na-1, anchored at node na. Its length is
+  L = sum_e a_e + offset (theta_{na-1} - theta_0) (a_e the elements' axial
+  lengths), its tension T = min(k_t max(0, L - L_free), T_max) acts as -T grad L:
+  an axial compression along the routed part and a distributed bending moment that
+  curls the leg down. ``L_free`` is the cable length the servo leaves out: state,
+  passed to the kernels as ``free_length``, not a packed parameter;
+- an optional static tip force and moment (for the leg experiment).
+
+The force and moment the leg exerts on its root (node 0, which belongs to the
+torso) are reported as the reaction on the torso.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..jit import njit
+from .params import (
+    O_FX,
+    O_FZ,
+    O_M,
+    P_C,
+    P_D,
+    P_G,
+    P_GROUND,
+    P_K,
+    P_KR,
+    P_MU,
+    P_NA,
+    P_PAPER,
+    P_TFX,
+    P_TFZ,
+    P_TK,
+    P_TM,
+    P_TMAX,
+    P_TOFF,
+    P_VEPS,
+)
+from .rod import LegModel, directors, elastic_forces_cs, element_kinematics, paper_elastic_forces
+
+
+@njit(cache=True)
+def tendon_length_cs(pos, theta, cth, sth, theta_root, par) -> float:
+    na = int(par[P_NA])
+    length = 0.0
+    for e in range(na):
+        _, _, a, _ = element_kinematics(pos, e, cth[e], sth[e])
+        length += a
+    return length + par[P_TOFF] * (theta[na - 1] - theta_root)
+
+
+@njit(cache=True)
+def tendon_length(pos, theta, theta_root, par) -> float:
+    """Length of the routed cable (see the module docstring)."""
+    cth = np.empty(theta.shape[0])
+    sth = np.empty(theta.shape[0])
+    directors(theta, cth, sth)
+    return tendon_length_cs(pos, theta, cth, sth, theta_root, par)
+
+
+def rest_free_length(model: LegModel, par: np.ndarray, slack: float) -> float:
+    """L_free with the servo at zero: the cable length of the rest shape plus the slack."""
+    return tendon_length(model.rest_pos, model.rest_theta, model.rest_theta[0], par) + slack
+
+
+@njit(cache=True)
+def tendon_tension(length, free_length, par) -> float:
+    """T = min(k_t max(0, L - L_free), T_max)."""
+    stretch = length - free_length
+    if stretch <= 0.0:
+        return 0.0
+    return min(par[P_TK] * stretch, par[P_TMAX])
+
+
+@njit(cache=True)
+def add_tendon(pos, cth, sth, tension, par, force, moment):
+    """-T grad L into force/moment."""
+    na = int(par[P_NA])
+    for e in range(na):
+        c = cth[e]
+        s = sth[e]
+        force[e, 0] += tension * c
+        force[e, 1] += tension * s
+        force[e + 1, 0] -= tension * c
+        force[e + 1, 1] -= tension * s
+        _, _, _, b = element_kinematics(pos, e, c, s)
+        moment[e] -= tension * b
+    moment[na - 1] -= tension * par[P_TOFF]
+
+
+@njit(cache=True)
+def tendon_jacobian(pos, cth, sth, tension, par, scale, band, grad_l):
+    """Add grad L into ``grad_l`` and ``scale`` * T * hess L into ``band`` (the implicit step's layout).
+
+    The tendon's stiffness is T hess L + k_t grad L grad L^T: the first part is banded,
+    the second rank-one (the implicit step handles it by Sherman-Morrison).
+    """
+    na = int(par[P_NA])
+    for e in range(na):
+        ce = cth[e]
+        se = sth[e]
+        _, _, a, b = element_kinematics(pos, e, ce, se)
+        grad_l[3 * e] -= ce
+        grad_l[3 * e + 1] -= se
+        grad_l[3 * e + 3] += ce
+        grad_l[3 * e + 4] += se
+        grad_l[3 * e + 2] += b
+        # Hessian of a_e: d2a/dDelta dtheta = d1, d2a/dtheta2 = -a
+        th = 3 * e + 2
+        for comp in range(2):
+            d1 = -se if comp == 0 else ce
+            for node, sg in ((3 * e + comp, -1.0), (3 * e + 3 + comp, 1.0)):
+                band[node, 4 + th - node] += scale * tension * sg * d1
+                band[th, 4 + node - th] += scale * tension * sg * d1
+        band[th, 4] += scale * tension * (-a)
+    grad_l[3 * (na - 1) + 2] += par[P_TOFF]
+
+
+@njit(cache=True)
+def conservative_forces(
+    pos,
+    theta,
+    theta_root,
+    l0,
+    voronoi,
+    dtheta0,
+    ea,
+    ga,
+    ei,
+    mass,
+    par,
+    free_length,
+    force,
+    moment,
+    cth,
+    sth,
+    rest_pos,
+    refresh,
+):
+    """Elastic + tendon + gravity + tip load (no contact, no damping); ``free_length`` is the tendon's L_free.
+
+    With ``refresh`` the directors ``cth``/``sth`` are recomputed from theta; otherwise
+    the caller keeps them current. Returns (tension, moment on the root).
+    """
+    force[:] = 0.0
+    moment[:] = 0.0
+    if refresh:
+        directors(theta, cth, sth)
+    if par[P_PAPER] > 0.5:
+        m_root = paper_elastic_forces(
+            pos, theta, cth, sth, theta_root, rest_pos, l0, voronoi, dtheta0, ea, ei, par[P_KR], force, moment
+        )
+    else:
+        m_root = elastic_forces_cs(pos, theta, cth, sth, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment)
+    tension = tendon_tension(tendon_length_cs(pos, theta, cth, sth, theta_root, par), free_length, par)
+    if tension > 0.0:
+        add_tendon(pos, cth, sth, tension, par, force, moment)
+        m_root += tension * par[P_TOFF]  # the cable leaves the root at the offset
+    n = pos.shape[0]
+    for i in range(n):
+        force[i, 1] -= mass[i] * par[P_G]
+    force[n - 1, 0] += par[P_TFX]
+    force[n - 1, 1] += par[P_TFZ]
+    moment[theta.shape[0] - 1] += par[P_TM]
+    return tension, m_root
+
+
+@njit(cache=True)
+def damping_reaction(vel, omega, mass, inertia, par, root, out):
+    """The relative-velocity damping acts between leg and torso: its reaction goes to the root."""
+    c = par[P_C]
+    if c == 0.0:
+        return
+    fx = 0.0
+    fz = 0.0
+    for i in range(1, vel.shape[0]):
+        fx += mass[i] * (vel[i, 0] - root[2])
+        fz += mass[i] * (vel[i, 1] - root[3])
+    m = 0.0
+    for e in range(omega.shape[0]):
+        m += inertia[e] * (omega[e] - root[5])
+    out[O_FX] += c * fx
+    out[O_FZ] += c * fz
+    out[O_M] += c * m
+
+
+@njit(cache=True)
+def root_reaction(force, m_root, mass, par, out):
+    # node 0 belongs to the torso: its own weight is not a leg load
+    out[O_FX] = force[0, 0]
+    out[O_FZ] = force[0, 1] + mass[0] * par[P_G]
+    out[O_M] = m_root
+
+
+@njit(cache=True)
+def dissipative_params(par):
+    """Settings of the loads both integrators treat implicitly (damping, contact, friction).
+
+    Returns (damping rate c, contact stiffness, contact damping, mu, v_eps, ground on).
+    """
+    return par[P_C], par[P_K], par[P_D], par[P_MU], par[P_VEPS], par[P_GROUND] > 0.5
+
+
+@njit(cache=True)
+def contact_proximal(vx, vz, vel_z, force_z, depth, hm, hc, damp, root_vz, k_c, d_c, mu, v_eps):
+    """Contact and friction of one node below the ground in the symplectic step, both implicit.
+
+    (``vx``, ``vz``) is the node's new velocity without contact, ``vel_z`` its old
+    vertical velocity, ``force_z`` the vertical force on it, ``hm`` = h / m,
+    ``hc`` = h c, ``damp`` = 1 / (1 + h c). The normal force uses the new vertical
+    velocity (implicit contact damping); the friction solves the proximal step
+    v + beta sat(v / v_eps) = v_free, beta = h mu N / m. Returns the new velocity,
+    the normal force and the friction force (0, 0 when the node is not pressed).
+    """
+    vz_c = (vel_z + hm * (force_z + k_c * depth) + hc * root_vz) / (1.0 + hc + hm * d_c)
+    nrm = k_c * depth - d_c * vz_c
+    if nrm > 0.0:
+        beta = hm * mu * nrm * damp
+        if abs(vx) <= v_eps + beta:
+            vx = vx / (1.0 + beta / v_eps)
+        else:
+            vx = vx - beta * np.sign(vx)
+        return vx, vz_c, nrm, -mu * nrm * max(-1.0, min(1.0, vx / v_eps))
+    return vx, vz, 0.0, 0.0
+
+
+@njit(cache=True)
+def contact_linearised(i, depth, vx, vz, h, k_c, d_c, mu, v_eps, band, rhs):
+    """Add the contact and friction of node ``i`` (below the ground), linearised, to the implicit step.
+
+    N = k depth - d vz and F_x = -mu N sat(vx / v_eps) with their Jacobians in
+    position and velocity go into ``band`` (as h^2 dF/dx + h dF/dv) and ``rhs``.
+    Returns (N, F_x), (0, 0) when the node is not pressed.
+    """
+    h2 = h * h
+    nrm = k_c * depth - d_c * vz
+    if nrm > 0.0:
+        dz = 3 * i + 1
+        dx = 3 * i
+        # N = -k z - d vz  -> dF/dz = -k, dF/dvz = -d
+        band[dz, 4] += h2 * k_c + h * d_c
+        rhs[dz] += h * nrm + h * d_c * vz
+        # F_x = -mu N sat(vx/v_eps)
+        r = vx / v_eps
+        sat = max(-1.0, min(1.0, r))
+        fx = -mu * nrm * sat
+        rhs[dx] += h * fx
+        if abs(r) < 1.0:
+            band[dx, 4] += h * mu * nrm / v_eps
+            rhs[dx] += h * mu * nrm / v_eps * vx
+        # coupling through N: dFx/dz = mu k sat, dFx/dvz = mu d sat
+        band[dx, 4 + 1] += -h2 * mu * k_c * sat - h * mu * d_c * sat
+        rhs[dx] += -h * mu * d_c * sat * vz
+        return nrm, fx
+    return 0.0, 0.0

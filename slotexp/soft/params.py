@@ -1,0 +1,91 @@
+"""Packed leg parameters and step outputs: index constants and the packer.
+
+The numba kernels take every load and contact setting of one leg in one float
+array ``par`` (indices ``P_*``, names in :data:`PAR`), so they keep one flat
+signature however many loads there are; each step reports the reaction on the
+root, the tendon tension and the contact totals in ``out`` (indices ``O_*``,
+names in :data:`OUT`). Flags (``ground``, ``paper_model``) are stored as 0/1 and
+the tendon's anchor node ``n_anchor`` as a float.
+
+``par`` holds what a run does not change; kernels only read it. What the servo
+changes, the tendon's free length (the cable it leaves out), is state: an argument
+of the step kernels, kept by their caller (:class:`~slotexp.soft.integrators.LegSim`,
+the coupled plant's servo loop).
+
+:func:`leg_params` is the one place a leg's parameters are read from the config,
+for the clamped leg (:mod:`slotexp.soft.statics`) and the four legs of the coupled
+plant (:mod:`slotexp.plants.cosserat`) alike.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..config import SlotConfig
+
+PAR = (
+    "gravity",
+    "k_contact",
+    "d_contact",
+    "mu",
+    "v_eps",
+    "ground",
+    "damping",
+    "tendon_k",
+    "tendon_offset",
+    "tendon_max",
+    "tip_fx",
+    "tip_fz",
+    "tip_m",
+    "n_anchor",
+    "paper_model",
+    "k_restore",
+)
+(P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFX, P_TFZ, P_TM, P_NA, P_PAPER, P_KR) = range(16)
+OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged")
+O_FX, O_FZ, O_M, O_T, O_N, O_F, O_DIV = range(7)
+
+
+def make_par(**kw: float) -> np.ndarray:
+    """Pack loads and contact settings; unspecified entries are zero (no ground, no tendon)."""
+    par = np.zeros(len(PAR))
+    par[P_VEPS] = 1e-3
+    par[P_TMAX] = np.inf
+    par[P_NA] = 1
+    for key, value in kw.items():
+        par[PAR.index(key)] = value
+    return par
+
+
+def leg_params(
+    cfg: SlotConfig, *, ground: bool = True, tip_force: Sequence[float] = (0.0, 0.0), tip_moment: float = 0.0
+) -> np.ndarray:
+    """The packed parameters of one leg of ``cfg.robot`` (``robot.leg``, ``contact``, ``tendon``, ``servo``).
+
+    ``ground`` and the static tip load are the caller's: the plant's legs stand on
+    the ground with no tip load, the clamped leg takes them from ``cfg.leg_load``.
+    The tendon is anchored at the node ``routed_fraction`` of the way down the leg;
+    its tension is capped at the servo's stall torque over the pulley radius.
+    """
+    leg, contact, tendon = cfg.robot.leg, cfg.robot.contact, cfg.robot.tendon
+    n = int(leg.n_nodes)
+    return make_par(
+        gravity=cfg.sim.gravity,
+        k_contact=contact.stiffness,
+        d_contact=contact.damping,
+        mu=contact.friction,
+        v_eps=contact.slip_velocity,
+        ground=1.0 if ground else 0.0,
+        damping=leg.damping_per_s,
+        tendon_k=tendon.stiffness,
+        tendon_offset=tendon.offset,
+        tendon_max=cfg.robot.servo.stall_torque / leg.pulley_radius,
+        tip_fx=tip_force[0],
+        tip_fz=tip_force[1],
+        tip_m=tip_moment,
+        n_anchor=max(1, int(round(tendon.routed_fraction * (n - 1)))),
+        paper_model=1.0 if leg.model == "paper" else 0.0,
+        k_restore=leg.restoring_stiffness,
+    )

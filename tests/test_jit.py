@@ -1,0 +1,89 @@
+"""The kernel cache follows the kernels a kernel calls (slotexp.jit), and nothing else.
+
+Plain ``numba.njit(cache=True)`` stamps a cached kernel with its own file only, so
+after a change to a callee in another module it keeps running the stale callee.
+These tests build a throw-away package whose kernel in ``b.py`` calls one in
+``a.py``, compile it in one process, edit ``a.py``, and call it again in a new
+process: through :func:`slotexp.jit.njit` the new result comes back.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+from slotexp.jit import kernel_dependencies
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _package(root: Path, decorator_import: str, value: int) -> None:
+    pkg = root / "pkgx"
+    pkg.mkdir(exist_ok=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text(
+        textwrap.dedent(f"""
+        {decorator_import}
+
+        SCALE = 10
+
+
+        @njit(cache=True)
+        def callee(x):
+            return x + {value}
+        """)
+    )
+    (pkg / "b.py").write_text(
+        textwrap.dedent(f"""
+        {decorator_import}
+        from .a import SCALE, callee
+
+
+        @njit(cache=True)
+        def caller(x):
+            return SCALE * callee(x)
+        """)
+    )
+    (pkg / "c.py").write_text('"""Not a kernel module: editing it must not touch the cache."""\nNOTE = 1\n')
+
+
+def _call(root: Path) -> int:
+    code = "from pkgx.b import caller; print(caller(1))"
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={"PYTHONPATH": f"{root}:{REPO}", "PATH": "/usr/bin:/bin"},
+    )
+    assert out.returncode == 0, out.stderr
+    return int(out.stdout.strip())
+
+
+def test_a_changed_callee_in_another_module_is_recompiled(tmp_path: Path) -> None:
+    _package(tmp_path, "from slotexp.jit import njit", 1)
+    assert _call(tmp_path) == 20
+    assert _call(tmp_path) == 20  # served from the cache
+    _package(tmp_path, "from slotexp.jit import njit", 2)  # only a.py's callee changes
+    assert _call(tmp_path) == 30
+
+
+def test_plain_numba_cache_keeps_the_stale_callee(tmp_path: Path) -> None:
+    """The failure the keyed stamp exists for (if numba ever fixes it, this test says so)."""
+    _package(tmp_path, "from numba import njit", 1)
+    assert _call(tmp_path) == 20
+    _package(tmp_path, "from numba import njit", 2)
+    assert _call(tmp_path) == 20
+
+
+def test_dependencies_are_what_the_kernels_use(tmp_path: Path) -> None:
+    _package(tmp_path, "from slotexp.jit import njit", 1)
+    pkg = tmp_path / "pkgx"
+    assert kernel_dependencies(pkg / "b.py") == [(pkg / "a.py").resolve()]
+    assert kernel_dependencies(pkg / "a.py") == []
+    # the project's own: the soft plant's kernel depends on the rigid-body and leg kernels, not on the config
+    deps = {p.name for p in kernel_dependencies(REPO / "slotexp" / "plants" / "cosserat.py")}
+    assert "body.py" in deps and "config.py" not in deps and "cli.py" not in deps
