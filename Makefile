@@ -19,7 +19,7 @@ run: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-# Regenerate everything committed under results/ (about 5 minutes on 2 cores).
+# Regenerate everything committed under results/ (about two hours on 2 cores, most of it the gait search).
 results: $(STAMP)
 	$(BIN)/python scripts/make_results.py
 

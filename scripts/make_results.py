@@ -16,7 +16,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SLOT = str(Path(sys.executable).parent / "slot")
-KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml")  # not logs
+KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml", "library.yaml")  # not logs
+# Commanded speeds (m/s) on the soft legs, inside the gait library's envelope (results/README.md says why).
+WALK = 0.02
+CRAWL = 0.006
+OMNI = 0.015
+LATERAL = 0.015
+TABLE1 = 0.015
+LIBRARY = ROOT / "slotexp" / "conf" / "library" / "default.yaml"
 
 RUNS = {
     # Paper Table I, Figs. 7-8 on the ideal plant with the default solver.
@@ -32,23 +39,150 @@ RUNS = {
     "simulate_crawl": ["experiment=simulate", "gait=crawl"],
     "simulate_omni60": ["experiment=simulate", "gait=omni60"],
     # --- soft legs ---
-    # The force-to-tendon map of our leg (paper eq. 11); also installed as conf/actuation/calibrated.yaml.
+    # The force-to-tendon map of our leg (paper eq. 11); also installed as slotexp/conf/actuation/calibrated.yaml.
     "calibrate": ["experiment=calibrate"],
     # ... and with the authors' code's E = 1e6 Pa.
     "calibrate_E1e6": ["experiment=calibrate", "robot.leg.youngs_modulus=1e6"],
     # Static checks: a uniform straight leg under a small tip load (Euler-Bernoulli), ours and the paper's model.
-    "leg_beam": ["experiment=leg", "robot.leg.rest_shape=straight", "robot.leg.thickness_tip=0.0135", "sim.gravity=0",
-                 "leg_load.ground=false", "leg_load.tip_force=[0,-0.01]"],
+    "leg_beam": [
+        "experiment=leg",
+        "robot.leg.rest_shape=straight",
+        "robot.leg.thickness_tip=0.0135",
+        "sim.gravity=0",
+        "leg_load.ground=false",
+        "leg_load.tip_force=[0,-0.01]",
+    ],
     "leg_tip_1N": ["experiment=leg", "sim.gravity=0", "leg_load.ground=false", "leg_load.tip_force=[0,-1]"],
-    "leg_tip_1N_paper_model": ["experiment=leg", "robot.leg.model=paper", "leg_load.integrator=symplectic",
-                               "leg_load.dt=2e-5", "sim.gravity=0", "leg_load.ground=false",
-                               "leg_load.tip_force=[0,-1]"],
-    # Closed loop on the soft plant.
-    "perturb_cosserat": ["experiment=perturb", "plant=cosserat"],
+    "leg_tip_1N_paper_model": [
+        "experiment=leg",
+        "robot.leg.model=paper",
+        "leg_load.integrator=symplectic",
+        "leg_load.dt=2e-5",
+        "sim.gravity=0",
+        "leg_load.ground=false",
+        "leg_load.tip_force=[0,-1]",
+    ],
+    # The leg's quasi-static maps (eq. 11 generalised).
+    "legmap": ["experiment=legmap", "plant=cosserat"],
+    # The gait library: CMA-ES on the soft plant; installed as slotexp/conf/library/default.yaml.
+    "gait_search_walk": ["experiment=gait_search", "plant=cosserat", "experiment.style=walk"],
+    "gait_search_crawl": [
+        "experiment=gait_search",
+        "plant=cosserat",
+        "experiment.style=crawl",
+        "experiment.headings=[0,90]",
+        "experiment.turn=false",
+        "experiment.free_phases=false",
+    ],
+    # Closed loop on the soft plant (controller=gait_mpc), speeds inside the library's envelope.
+    "simulate_cosserat_walk": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        f"gait.velocity=[{WALK},0]",
+        "experiment.duration=45",
+    ],
+    "simulate_cosserat_crawl": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=crawl",
+        f"gait.velocity=[{CRAWL},0]",
+        "experiment.duration=30",
+    ],
+    "simulate_cosserat_omni60": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=omni60",
+        f"gait.velocity=[{OMNI * 0.5:.4f},{OMNI * 0.8660254:.4f}]",
+        "experiment.duration=45",
+    ],
+    "simulate_cosserat_backward": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=backward",
+        f"gait.velocity=[-{WALK},0]",
+        "experiment.duration=30",
+    ],
+    "simulate_cosserat_lateral": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=lateral",
+        f"gait.velocity=[0,{LATERAL}]",
+        "experiment.duration=30",
+    ],
+    # The controller does the work: the same commands with the MPC replaced by the open-loop schedule.
+    "simulate_cosserat_walk_open_loop": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        "controller=open_loop",
+        f"gait.velocity=[{WALK},0]",
+        "experiment.duration=45",
+    ],
+    "simulate_cosserat_omni60_open_loop": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=omni60",
+        "controller=open_loop",
+        f"gait.velocity=[{OMNI * 0.5:.4f},{OMNI * 0.8660254:.4f}]",
+        "experiment.duration=45",
+    ],
+    "push_side_gait_mpc": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "experiment.scenario=push_side",
+        f"gait.velocity=[{WALK},0]",
+        "experiment.duration=15",
+    ],
+    "push_side_open_loop": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "experiment.scenario=push_side",
+        "controller=open_loop",
+        f"gait.velocity=[{WALK},0]",
+        "experiment.duration=15",
+    ],
+    # The paper's controller (eq. 11 + fixed schedule) on the soft legs: it does not walk.
+    "simulate_cosserat_walk_paper_controller": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "controller=paper",
+        "gait=walk",
+        "experiment.duration=12",
+    ],
+    # Step-size convergence of the walk and creep check (the friction's regularisation halved).
+    "simulate_cosserat_walk_dt5e-5": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        f"gait.velocity=[{WALK},0]",
+        "experiment.duration=20",
+        "sim.dt=5e-5",
+    ],
+    "simulate_cosserat_walk_dt2.5e-5": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        f"gait.velocity=[{WALK},0]",
+        "experiment.duration=20",
+        "sim.dt=2.5e-5",
+    ],
+    "simulate_cosserat_walk_slip_half": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        f"gait.velocity=[{WALK},0]",
+        "experiment.duration=20",
+        "robot.contact.slip_velocity=5e-4",
+    ],
+    # Table I on the soft plant, walking at a reachable speed; cost of the cycle-mean error.
+    "perturb_cosserat": [
+        "experiment=perturb",
+        "plant=cosserat",
+        f"gait.velocity=[{TABLE1},0]",
+        "experiment.cost_average=gait_cycle",
+    ],
     "perturb_cosserat_standstill": ["experiment=perturb", "plant=cosserat", "gait.velocity=[0,0]"],
-    "simulate_cosserat_walk": ["experiment=simulate", "plant=cosserat", "gait=walk"],
-    "simulate_cosserat_crawl": ["experiment=simulate", "plant=cosserat", "gait=crawl"],
-    "simulate_cosserat_omni60": ["experiment=simulate", "plant=cosserat", "gait=omni60"],
 }
 
 # Benchmarks: `slot bench <component>`, measured in one process (run with nothing else on the machine).
@@ -56,6 +190,19 @@ BENCHES = {
     "bench_mpc": ["mpc"],
     "bench_leg": ["leg"],
 }
+
+
+def install_library(searched: Path) -> None:
+    """Put the searched style into conf/library/default.yaml, keeping the other styles."""
+    import yaml
+
+    library = yaml.safe_load(LIBRARY.read_text()) or {}
+    library.update(yaml.safe_load(searched.read_text()))
+    LIBRARY.write_text(
+        "# @package controller.library\n# The gait library, written by `make results` from "
+        "`slot run experiment=gait_search` (results/gait_search_*).\n"
+        + yaml.safe_dump(library, default_flow_style=None, sort_keys=False, width=120)
+    )
 
 
 def main(names: list[str]) -> None:
@@ -83,6 +230,8 @@ def main(names: list[str]) -> None:
                 shutil.copy2(f, dest / f.name)
         if name == "calibrate":  # the controller's calibrated map is this run's output
             shutil.copy2(run_dir / "actuation_calibrated.yaml", ROOT / "conf" / "actuation" / "calibrated.yaml")
+        if name.startswith("gait_search_"):  # the gait controllers' library is these runs' output
+            install_library(run_dir / "library.yaml")
     timing_path.write_text(json.dumps(timing, indent=2) + "\n")
 
 

@@ -9,39 +9,46 @@ gyroscopic term here, unlike the MPC's prediction model, paper eq. 7).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from .jit import njit
 
 
 @njit(cache=True)
 def quat_to_rot(q: np.ndarray) -> np.ndarray:
     w, x, y, z = q[0], q[1], q[2], q[3]
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 @njit(cache=True)
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.array([
-        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
-    ])
+    return np.array(
+        [
+            a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+            a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+            a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+            a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+        ]
+    )
 
 
 def euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
     cr, sr = np.cos(roll / 2), np.sin(roll / 2)
     cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
     cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.array([
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    ])
+    return np.array(
+        [
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ]
+    )
 
 
 def quat_to_euler(q: np.ndarray) -> np.ndarray:
@@ -66,8 +73,16 @@ def euler_rate_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 
 @njit(cache=True)
-def _derivative(state: np.ndarray, forces: np.ndarray, points_b: np.ndarray, f_ext: np.ndarray,
-                mass: float, inertia: np.ndarray, inertia_inv: np.ndarray, gravity: float) -> np.ndarray:
+def _derivative(
+    state: np.ndarray,
+    forces: np.ndarray,
+    points_b: np.ndarray,
+    f_ext: np.ndarray,
+    mass: float,
+    inertia: np.ndarray,
+    inertia_inv: np.ndarray,
+    gravity: float,
+) -> np.ndarray:
     # state: p(3) q(4) v(3) w_body(3)
     q = state[3:7]
     w = state[10:13]
@@ -93,9 +108,18 @@ def _derivative(state: np.ndarray, forces: np.ndarray, points_b: np.ndarray, f_e
 
 
 @njit(cache=True)
-def integrate_rk4(state: np.ndarray, forces: np.ndarray, points_b: np.ndarray, f_ext: np.ndarray,
-                  mass: float, inertia: np.ndarray, inertia_inv: np.ndarray, gravity: float,
-                  h: float, n_steps: int) -> np.ndarray:
+def integrate_rk4(
+    state: np.ndarray,
+    forces: np.ndarray,
+    points_b: np.ndarray,
+    f_ext: np.ndarray,
+    mass: float,
+    inertia: np.ndarray,
+    inertia_inv: np.ndarray,
+    gravity: float,
+    h: float,
+    n_steps: int,
+) -> np.ndarray:
     """Advance the torso ``n_steps`` RK4 steps of ``h`` with world forces held constant.
 
     ``forces[i]`` acts at the body-fixed point ``points_b[i]`` (relative to the CoM).

@@ -15,24 +15,43 @@ from pathlib import Path
 
 import typer
 
-from .config import ConfigError, validate
+from .config import validate
+from .errors import UserError
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
-GROUPS = ("robot", "gait", "solver", "plant", "experiment", "scenario", "actuation")
-HARDWARE_GROUPS = ("robot", "gait", "solver", "actuation", "plant", "hardware", "odometry")
+CONF_DIR = Path(__file__).resolve().parent / "conf"  # shipped with the package
+GROUPS = ("robot", "gait", "solver", "plant", "controller", "library", "experiment", "scenario", "actuation")
+HARDWARE_GROUPS = ("robot", "gait", "solver", "actuation", "plant", "controller", "library", "hardware", "odometry")
 HARDWARE_CONFIG = "hardware_config"
 HELP_FLAGS = {"--hydra-help", "--help", "-h", "--shell-completion", "-sc"}
-VALUE_FLAGS = {"--cfg", "-c", "--package", "-p", "--config-path", "-cp", "--config-name", "-cn",
-               "--config-dir", "-cd", "--experimental-rerun", "--info", "-i"}
+VALUE_FLAGS = {
+    "--cfg",
+    "-c",
+    "--package",
+    "-p",
+    "--config-path",
+    "-cp",
+    "--config-name",
+    "-cn",
+    "--config-dir",
+    "-cd",
+    "--experimental-rerun",
+    "--info",
+    "-i",
+}
 MAX_PRECHECK = 256
 EXIT_USER_ERROR = 2
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help=(
-    "slotexp: reproduce and extend the SLOT soft-quadruped convex-MPC paper.\n\n"
-    "  slot run experiment=perturb            Table I, Figs. 7-8\n\n"
-    "  slot run experiment=simulate gait=omni60\n\n"
-    "  slot run -m experiment=perturb solver=scs,osqp,clarabel\n\n"
-    "  slot figures experiments/perturb/<timestamp>"))
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help=(
+        "slotexp: reproduce and extend the SLOT soft-quadruped convex-MPC paper.\n\n"
+        "  slot run experiment=perturb            Table I, Figs. 7-8\n\n"
+        "  slot run experiment=simulate gait=omni60\n\n"
+        "  slot run -m experiment=perturb solver=scs,osqp,clarabel\n\n"
+        "  slot figures experiments/perturb/<timestamp>"
+    ),
+)
 
 
 def fail(message: str) -> None:
@@ -40,19 +59,20 @@ def fail(message: str) -> None:
     raise SystemExit(EXIT_USER_ERROR)
 
 
-def _user_errors() -> tuple[type[BaseException], ...]:
-    from .compare import TrajectoryError
-    from .errors import UserError
-    from .record import LogReadError
+def register_schemas() -> None:
+    """Every schema the CLI's configs compose onto: ``slot run``'s and ``slot hardware``'s."""
+    from .config import register_schemas as register_run_schemas
+    from .hardware.config import register_hardware_schemas
 
-    return ConfigError, UserError, TrajectoryError, LogReadError
+    register_run_schemas()
+    register_hardware_schemas()
 
 
 def group_options(group: str) -> list[str]:
     return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
 
 
-def load_config(cfg) -> "SlotConfig":  # noqa: F821 - forward ref to avoid importing at CLI start
+def load_config(cfg) -> SlotConfig:  # noqa: F821 - forward ref to avoid importing at CLI start
     """DictConfig -> checked dataclasses."""
     from omegaconf import OmegaConf
 
@@ -87,8 +107,9 @@ def _override_text(o, value: str) -> str:
     return f"{prefix}{key}={value}"
 
 
-def precheck(overrides: list[str], multirun: bool, config_name: str = "config", groups: tuple[str, ...] = GROUPS,
-             loader=None) -> None:
+def precheck(
+    overrides: list[str], multirun: bool, config_name: str = "config", groups: tuple[str, ...] = GROUPS, loader=None
+) -> None:
     """Compose and validate every combination the run would launch; fail with one line."""
     from hydra import compose, initialize_config_dir
     from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -115,8 +136,6 @@ def precheck(overrides: list[str], multirun: bool, config_name: str = "config", 
                 if v not in options:
                     fail(f"unknown {group} {v!r}: choose one of {', '.join(options)} (files in conf/{group}/)")
         choices.append([_override_text(o, v) if not o.is_delete() else o.input_line for v in values])
-    from .config import register_schemas
-
     register_schemas()
     combos = itertools.islice(itertools.product(*choices), MAX_PRECHECK)
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
@@ -127,7 +146,7 @@ def precheck(overrides: list[str], multirun: bool, config_name: str = "config", 
                 fail(_compose_message(exc))
             try:
                 (loader or load_config)(cfg)
-            except ConfigError as exc:
+            except UserError as exc:
                 fail(str(exc))
             except (OmegaConfBaseException, ValueError, TypeError) as exc:
                 fail(_compose_message(exc))
@@ -154,17 +173,18 @@ def _hydra_task(cfg) -> None:
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         run_experiment(load_config(cfg), out_dir, OmegaConf.to_yaml(cfg))
-    except _user_errors() as exc:
+    except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except KeyboardInterrupt:
         typer.echo(f"interrupted: the logs written so far are valid and readable in {out_dir}", err=True)
         typer.echo(str(out_dir))
-        raise SystemExit(130)
+        raise SystemExit(130) from None
     typer.echo(str(out_dir))
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True,
-                               "help_option_names": ["--help"]})
+@app.command(
+    context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": ["--help"]}
+)
 def run(ctx: typer.Context) -> None:
     """Run an experiment. Arguments are Hydra overrides, e.g. experiment=perturb gait=walk solver=scs.
 
@@ -176,8 +196,6 @@ def run(ctx: typer.Context) -> None:
     config, hydra.run.dir=DIR to choose the output directory.
     """
     import hydra
-
-    from .config import register_schemas
 
     args = list(ctx.args)
     overrides, multirun, info = _split(args)
@@ -196,14 +214,13 @@ def _hardware_task(cfg) -> None:
 
     from .hardware.config import load_hardware_config
     from .hardware.run import run_hardware
-    from .jobs.logged import git_commit
+    from .jobs._logged import git_commit
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         hw_cfg = load_hardware_config(cfg)
-        result = run_hardware(hw_cfg, out_dir, OmegaConf.to_yaml(cfg), lambda m: typer.echo(m, err=True),
-                              git_commit())
-    except _user_errors() as exc:
+        result = run_hardware(hw_cfg, out_dir, OmegaConf.to_yaml(cfg), lambda m: typer.echo(m, err=True), git_commit())
+    except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     if result.outcome is not None and result.outcome.steps >= 2:
         from .hardware.report import report
@@ -220,11 +237,17 @@ def _hardware_task(cfg) -> None:
         raise SystemExit(result.exit_code)
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True,
-                               "help_option_names": ["--help"]})
-def hardware(ctx: typer.Context,
-             dry_run: bool = typer.Option(False, "--dry-run", help="Run the whole loop with torque off and "
-                                          "never write Goal Position; log what would be sent.")) -> None:
+@app.command(
+    context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": ["--help"]}
+)
+def hardware(
+    ctx: typer.Context,
+    dry_run: bool = typer.Option(
+        False,
+        "--dry-run",
+        help="Run the whole loop with torque off and never write Goal Position; log what would be sent.",
+    ),
+) -> None:
     """Run the MPC on the robot (four XL430 servos, VIO odometry). Arguments are Hydra overrides.
 
     Groups: hardware (xl430), odometry (zmq, replay, sim), and robot, gait, solver, actuation, plant as for `slot run`.
@@ -237,7 +260,6 @@ def hardware(ctx: typer.Context,
     """
     import hydra
 
-    from .config import register_schemas
     from .hardware.config import load_hardware_config
 
     args = list(ctx.args)
@@ -255,11 +277,9 @@ def hardware(ctx: typer.Context,
     main_fn()
 
 
-def compose_config(overrides: list[str]) -> "SlotConfig":  # noqa: F821
+def compose_config(overrides: list[str]) -> SlotConfig:  # noqa: F821
     """The checked config for one set of overrides, outside any Hydra run (bench, tools)."""
     from hydra import compose, initialize_config_dir
-
-    from .config import register_schemas
 
     precheck(overrides, multirun=False)
     register_schemas()
@@ -268,38 +288,34 @@ def compose_config(overrides: list[str]) -> "SlotConfig":  # noqa: F821
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-def bench(ctx: typer.Context,
-          out: Path = typer.Option(None, "--out", help="Output directory (default experiments/bench/<timestamp>).")
-          ) -> None:
+def bench(
+    ctx: typer.Context,
+    out: Path = typer.Option(None, "--out", help="Output directory (default experiments/bench/<timestamp>)."),
+) -> None:
     """Benchmark components side by side in one process: slot bench mpc leg, plus any Hydra overrides.
 
     Writes bench.csv (component,variant,median_us,p99_us,ratio_vs_baseline) and
     bench.json, prints the table, and prints the output directory last.
     """
     import datetime as _dt
-    import importlib
-    import pkgutil
 
     from rich.console import Console
     from rich.table import Table
 
     from . import bench as bench_pkg
 
-    for mod in pkgutil.iter_modules(bench_pkg.__path__):
-        importlib.import_module(f"{bench_pkg.__name__}.{mod.name}")
+    components = bench_pkg.COMPONENTS
     args = list(ctx.args)
-    names = [a for a in args if "=" not in a] or sorted(bench_pkg.COMPONENTS)
+    names = [a for a in args if "=" not in a] or list(components.names())
     overrides = [a for a in args if "=" in a]
-    unknown = [n for n in names if n not in bench_pkg.COMPONENTS]
+    unknown = [n for n in names if n not in components.names()]
     if unknown:
-        fail(f"unknown bench component {unknown[0]!r}: choose from {', '.join(sorted(bench_pkg.COMPONENTS))}")
-    if not bench_pkg.COMPONENTS:
-        fail("no benchmark components are available in this version")
-    configs = {name: compose_config(bench_pkg.OVERRIDES[name] + overrides) for name in names}
+        fail(f"unknown bench component {unknown[0]!r}: choose from {', '.join(components.names())}")
+    configs = {name: compose_config([*components.get(name).overrides, *overrides]) for name in names}
     out_dir = out or Path("experiments") / "bench" / _dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     rows = []
     for name in names:
-        rows += bench_pkg.COMPONENTS[name](configs[name], out_dir)
+        rows += components.get(name).measure(configs[name], out_dir)
     bench_pkg.write(rows, out_dir)
     table = Table(*bench_pkg.CSV_COLUMNS)
     for r in rows:
@@ -311,68 +327,43 @@ def bench(ctx: typer.Context,
 @app.command()
 def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (holding logs/*.mcap).")) -> None:
     """Rebuild a run's tables and figures from its MCAP logs alone."""
-    from omegaconf import OmegaConf
-
+    from .config import config_from_yaml
+    from .jobs import EXPERIMENTS
+    from .jobs import validate as val
     from .record import read_log
     from .runlog import find_logs
 
     if not run_dir.is_dir():
         fail(f"{run_dir}: not a directory: give a run's output directory")
-    from .jobs import validate as val
-
-    if (run_dir / val.INPUTS_FILE).is_file():
-        try:
-            val.rebuild(run_dir)
-        except _user_errors() as exc:
-            fail(str(exc))
-        typer.echo(str(run_dir))
-        return
-    logs = find_logs(run_dir)
-    if not logs:
-        fail(f"{run_dir}: no logs/*.mcap found: is this a run's output directory?")
     try:
-        meta = read_log(logs[0]).metadata
-        experiment = meta.get("run", {}).get("experiment")
-        conf = OmegaConf.create(meta.get("config", {}).get("yaml", "{}"))
-        if experiment == "perturb":
-            from .jobs import perturb
-
-            exp = conf.experiment
-            perturb.report(run_dir, float(exp.settle_fraction), float(exp.get("settle_hold_s", 1.0)),
-                           {n: i for i, n in enumerate(exp.scenarios)})
-        elif experiment == "hardware":
-            from .hardware.report import report_from_log
-
-            report_from_log(run_dir, conf)
-        elif experiment == "simulate":
-            from .jobs import simulate
-
-            simulate.report(run_dir, list(conf.gait.velocity), float(conf.experiment.drift_distance),
-                            list(conf.robot.leg.names))
-        elif experiment == "leg":
-            from .jobs import leg
-
-            leg.report(run_dir)
-        elif experiment == "calibrate":
-            from .jobs import calibrate
-
-            calibrate.report(run_dir, float(conf.experiment.fit_min_force))
+        if (run_dir / val.INPUTS_FILE).is_file():  # a comparison of given logs: its inputs are the record
+            val.rebuild(run_dir)
         else:
-            fail(f"{logs[0]}: log metadata names no known experiment ({experiment!r})")
-    except _user_errors() as exc:
+            logs = find_logs(run_dir)
+            if not logs:
+                fail(f"{run_dir}: no logs/*.mcap found: is this a run's output directory?")
+            meta = read_log(logs[0]).metadata
+            name = meta.get("run", {}).get("experiment")
+            if name not in EXPERIMENTS.names():
+                fail(f"{logs[0]}: log metadata names no known experiment ({name!r})")
+            experiment = EXPERIMENTS.get(name)
+            cfg = config_from_yaml(meta.get("config", {}).get("yaml", "{}"), experiment.schema, experiment.root_schema)
+            experiment.report(run_dir, cfg)
+    except UserError as exc:
         fail(str(exc))
     typer.echo(str(run_dir))
 
 
 @app.command()
-def summarize(multirun_dir: Path = typer.Argument(..., help="A multirun's output directory (slot run -m ...).")
-              ) -> None:
+def summarize(
+    multirun_dir: Path = typer.Argument(..., help="A multirun's output directory (slot run -m ...)."),
+) -> None:
     """Gather every job of a sweep into summary.csv, summary.md and summary.png in its directory."""
     from .summarize import summarize as summarize_sweep
 
     try:
         summarize_sweep(multirun_dir)
-    except _user_errors() as exc:
+    except UserError as exc:
         fail(str(exc).splitlines()[0])
     typer.echo(str(multirun_dir))
 
@@ -382,7 +373,7 @@ def main() -> None:
         app()
     except KeyboardInterrupt:
         typer.echo("interrupted", err=True)
-        raise SystemExit(130)
+        raise SystemExit(130) from None
 
 
 if __name__ == "__main__":  # pragma: no cover

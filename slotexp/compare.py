@@ -66,12 +66,14 @@ from __future__ import annotations
 import csv
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import pandas as pd
+
+from .errors import TrajectoryError
 
 __all__ = [
     "TrajectoryError",
@@ -101,14 +103,6 @@ OVERLAP_TOL_S = 1e-9
 
 _CSV_COLUMN_RE = re.compile(r"^([A-Za-z0-9_]+)_([xyz])$")
 _METRIC_COLUMNS = ["marker", "axis", "rmse_m", "mae_m", "nrmse", "n_samples"]
-
-
-class TrajectoryError(ValueError):
-    """A reference or candidate that cannot be used; str(exc) is ONE line telling the user what to fix."""
-
-    def __init__(self, message: str) -> None:
-        # Collapse any whitespace run containing a newline so the CLI can print one line.
-        super().__init__(" ".join(str(message).split()))
 
 
 def _fmt_range(t0: float, t1: float) -> str:
@@ -150,9 +144,12 @@ class Trajectory:
             i = int(bad[0]) + 1
             raise TrajectoryError(
                 f"trajectory time t is not strictly increasing at index {i} "
-                f"(t[{i - 1}]={float(t[i - 1])!r}, t[{i}]={float(t[i])!r}); sort the samples and drop duplicates")
+                f"(t[{i - 1}]={float(t[i - 1])!r}, t[{i}]={float(t[i])!r}); sort the samples and drop duplicates"
+            )
         if not isinstance(self.markers, dict):
-            raise TrajectoryError(f"trajectory markers must be a dict name -> (n, 3) array, got {type(self.markers).__name__}")
+            raise TrajectoryError(
+                f"trajectory markers must be a dict name -> (n, 3) array, got {type(self.markers).__name__}"
+            )
         if not self.markers:
             raise TrajectoryError("trajectory has no markers; give at least one (n, 3) position array")
         markers: dict[str, np.ndarray] = {}
@@ -165,11 +162,13 @@ class Trajectory:
                 raise TrajectoryError(f"marker {name!r} positions are not numeric ({exc})") from None
             if a.shape != (n, 3):
                 raise TrajectoryError(
-                    f"marker {name!r} has shape {a.shape}; expected ({n}, 3) to match the {n} time samples")
+                    f"marker {name!r} has shape {a.shape}; expected ({n}, 3) to match the {n} time samples"
+                )
             if np.isinf(a).any():
                 r, c = np.argwhere(np.isinf(a))[0]
                 raise TrajectoryError(
-                    f"marker {name!r} has an infinite {AXES[c]} position at index {int(r)}; use NaN for lost tracking")
+                    f"marker {name!r} has an infinite {AXES[c]} position at index {int(r)}; use NaN for lost tracking"
+                )
             a.setflags(write=False)
             markers[name] = a
         t.setflags(write=False)
@@ -221,15 +220,21 @@ def load_marker_csv(path: str | Path) -> Trajectory:
             raise TrajectoryError(f"{where}, line {lineno}: malformed CSV ({exc})") from None
         rows.append((lineno, [f.strip() for f in fields]))
     if not rows:
-        raise TrajectoryError(f"{where} is empty (no header row); it needs a header 't,<marker>_x,<marker>_y,<marker>_z,...' and data rows")
+        raise TrajectoryError(
+            f"{where} is empty (no header row); it needs a header 't,<marker>_x,<marker>_y,<marker>_z,...' "
+            "and data rows"
+        )
 
     header_line, header = rows[0]
     if "t" not in header:
         raise TrajectoryError(
-            f"{where}, line {header_line}: no 't' column in header {','.join(header)!r}; the first column must be 't' (seconds)")
+            f"{where}, line {header_line}: no 't' column in header {','.join(header)!r}; "
+            "the first column must be 't' (seconds)"
+        )
     if header[0] != "t":
         raise TrajectoryError(
-            f"{where}, line {header_line}: 't' is column {header.index('t') + 1}; move it to the first column")
+            f"{where}, line {header_line}: 't' is column {header.index('t') + 1}; move it to the first column"
+        )
     seen: set[str] = set()
     columns: dict[str, dict[str, int]] = {}  # marker -> axis -> column index
     for j, name in enumerate(header[1:], start=1):
@@ -240,16 +245,20 @@ def load_marker_csv(path: str | Path) -> Trajectory:
         if m is None:
             raise TrajectoryError(
                 f"{where}, line {header_line}: column {j + 1} {name!r} is not '<marker>_x|_y|_z' "
-                f"with <marker> in [A-Za-z0-9_]+; rename or remove it")
+                f"with <marker> in [A-Za-z0-9_]+; rename or remove it"
+            )
         columns.setdefault(m.group(1), {})[m.group(2)] = j
     if not columns:
-        raise TrajectoryError(f"{where}, line {header_line}: no marker columns; add '<marker>_x,<marker>_y,<marker>_z' columns")
+        raise TrajectoryError(
+            f"{where}, line {header_line}: no marker columns; add '<marker>_x,<marker>_y,<marker>_z' columns"
+        )
     for marker, axes in columns.items():
         missing = [f"{marker}_{a}" for a in AXES if a not in axes]
         if missing:
             raise TrajectoryError(
                 f"{where}, line {header_line}: marker {marker!r} is missing column(s) {', '.join(missing)}; "
-                f"every marker needs _x, _y and _z")
+                f"every marker needs _x, _y and _z"
+            )
 
     data = rows[1:]
     if len(data) < 2:
@@ -261,12 +270,14 @@ def load_marker_csv(path: str | Path) -> Trajectory:
     for i, (lineno, fields) in enumerate(data):
         if len(fields) != ncol:
             raise TrajectoryError(
-                f"{where}, line {lineno}: {len(fields)} fields but the header has {ncol}; fix the row")
+                f"{where}, line {lineno}: {len(fields)} fields but the header has {ncol}; fix the row"
+            )
         tv = _parse_cell(fields[0], where, lineno, "t", allow_empty=False)
         if i and tv <= t[i - 1]:
             raise TrajectoryError(
                 f"{where}, line {lineno}: t={tv!r} is not greater than t={float(t[i - 1])!r} on line {prev_line}; "
-                f"rows must have strictly increasing time")
+                f"rows must have strictly increasing time"
+            )
         t[i] = tv
         for marker, axes in columns.items():
             for k, a in enumerate(AXES):
@@ -286,7 +297,8 @@ def _parse_cell(cell: str, where: str, lineno: int, column: str, *, allow_empty:
     except ValueError:
         raise TrajectoryError(
             f"{where}, line {lineno}, column {column!r}: {cell[:40]!r} is not a number; "
-            f"use a decimal value{' or leave the cell empty for lost tracking' if allow_empty else ''}") from None
+            f"use a decimal value{' or leave the cell empty for lost tracking' if allow_empty else ''}"
+        ) from None
     if math.isinf(v) or (math.isnan(v) and not allow_empty):
         raise TrajectoryError(f"{where}, line {lineno}, column {column!r}: {cell!r} is not a finite number")
     return v
@@ -303,7 +315,8 @@ def trajectory_from_frame(df: pd.DataFrame) -> Trajectory:
         raise TrajectoryError(f"expected a pandas DataFrame of logged markers, got {type(df).__name__}")
     if "t" not in df.columns:
         raise TrajectoryError(
-            f"logged frame has no 't' column (columns: {', '.join(map(str, df.columns[:12]))}); log the time as 't'")
+            f"logged frame has no 't' column (columns: {', '.join(map(str, df.columns[:12]))}); log the time as 't'"
+        )
     found: dict[str, dict[int, str]] = {}
     for col in df.columns:
         if not isinstance(col, str) or "." not in col:
@@ -315,13 +328,16 @@ def trajectory_from_frame(df: pd.DataFrame) -> Trajectory:
     if not complete:
         raise TrajectoryError(
             "logged frame has no complete marker (need '<marker>.0', '<marker>.1', '<marker>.2' columns); "
-            f"columns: {', '.join(map(str, df.columns[:12]))}")
+            f"columns: {', '.join(map(str, df.columns[:12]))}"
+        )
 
     def numeric(col: str) -> np.ndarray:
         try:
             return pd.to_numeric(df[col], errors="raise").to_numpy(dtype=float, na_value=np.nan)
         except (TypeError, ValueError):
-            raise TrajectoryError(f"logged column {col!r} is not numeric; it cannot be a marker coordinate or time") from None
+            raise TrajectoryError(
+                f"logged column {col!r} is not numeric; it cannot be a marker coordinate or time"
+            ) from None
 
     t = numeric("t")
     markers = {name: np.column_stack([numeric(cols[k]) for k in range(3)]) for name, cols in complete.items()}
@@ -380,8 +396,9 @@ def _interp_nan(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     return out
 
 
-def align(reference: Trajectory, candidate: Trajectory,
-          alignment: Alignment) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+def align(
+    reference: Trajectory, candidate: Trajectory, alignment: Alignment
+) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Put both trajectories on one time base: the reference's samples inside the overlap.
 
     Returns ``(times, ref_markers, cand_markers)``: ``times`` are the shifted reference
@@ -394,7 +411,8 @@ def align(reference: Trajectory, candidate: Trajectory,
     if not shared:
         raise TrajectoryError(
             f"reference and candidate share no marker: reference has {sorted(reference.markers)}, "
-            f"candidate has {sorted(candidate.markers)}; compare trajectories of the same markers")
+            f"candidate has {sorted(candidate.markers)}; compare trajectories of the same markers"
+        )
     t_ref, t_cand = _shifted_times(reference, candidate, alignment)
     lo = max(t_ref[0], t_cand[0])
     hi = min(t_ref[-1], t_cand[-1])
@@ -404,7 +422,8 @@ def align(reference: Trajectory, candidate: Trajectory,
             f"no usable time overlap: reference spans {_fmt_range(t_ref[0], t_ref[-1])} and candidate spans "
             f"{_fmt_range(t_cand[0], t_cand[-1])} after alignment mode={alignment.mode!r}, "
             f"offset_s={alignment.offset_s:g} (need at least 2 reference samples in the overlap); "
-            f"use mode 'start' or fix offset_s")
+            f"use mode 'start' or fix offset_s"
+        )
     times = t_ref[keep]
     ref_out = {name: reference.markers[name][keep].copy() for name in shared}
     cand_out = {
@@ -417,8 +436,12 @@ def align(reference: Trajectory, candidate: Trajectory,
 # --------------------------------------------------------------------------- metrics
 
 
-def compare(reference: Trajectory, candidate: Trajectory, alignment: Alignment = Alignment(),
-            markers: Sequence[str] | None = None) -> pd.DataFrame:
+def compare(
+    reference: Trajectory,
+    candidate: Trajectory,
+    alignment: Alignment = Alignment(),
+    markers: Sequence[str] | None = None,
+) -> pd.DataFrame:
     """RMSE, MAE and NRMSE of candidate vs reference, one row per (marker, axis).
 
     Columns: ``marker, axis, rmse_m, mae_m, nrmse, n_samples``. ``markers`` restricts
@@ -432,7 +455,8 @@ def compare(reference: Trajectory, candidate: Trajectory, alignment: Alignment =
         if missing:
             raise TrajectoryError(
                 f"marker(s) {missing} not in both trajectories: reference has {sorted(reference.markers)}, "
-                f"candidate has {sorted(candidate.markers)}; pick markers present in both")
+                f"candidate has {sorted(candidate.markers)}; pick markers present in both"
+            )
         if not markers:
             raise TrajectoryError("the marker list is empty; name at least one marker or leave it unset")
     times, ref, cand = align(reference, candidate, alignment)
@@ -453,7 +477,6 @@ def compare(reference: Trajectory, candidate: Trajectory, alignment: Alignment =
                 mae = float(np.mean(np.abs(err)))
                 span = float(np.max(r[used]) - np.min(r[used]))
                 nrmse = rmse / span if span >= NRMSE_MIN_RANGE_M else math.nan
-            records.append({"marker": name, "axis": axis, "rmse_m": rmse, "mae_m": mae,
-                            "nrmse": nrmse, "n_samples": n})
+            records.append({"marker": name, "axis": axis, "rmse_m": rmse, "mae_m": mae, "nrmse": nrmse, "n_samples": n})
     out = pd.DataFrame.from_records(records, columns=_METRIC_COLUMNS)
     return out.astype({"rmse_m": float, "mae_m": float, "nrmse": float, "n_samples": int})

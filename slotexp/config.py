@@ -6,6 +6,10 @@ the wrong type is rejected while composing), and :func:`validate` then checks ev
 declared physical range so a bad value fails before any work starts, with one line
 that names the key and the allowed range.
 
+Each experiment's own schema (``experiment.*``) lives beside the experiment in
+``slotexp/jobs/<name>.py``; :func:`validate` runs its ``check`` for the rules that
+span the config (a scenario it names must exist, ...).
+
 This module imports no Hydra at module level: the numerical core uses the
 dataclasses; only :func:`register_schemas` touches Hydra's ConfigStore.
 """
@@ -14,8 +18,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any
+
+from .errors import ConfigError
 
 __all__ = [
     "ConfigError",
@@ -27,42 +34,70 @@ __all__ = [
     "MpcConfig",
     "SolverConfig",
     "PlantConfig",
+    "ControllerConfig",
+    "GaitStyleConfig",
+    "PrimitiveConfig",
     "StateOffset",
     "Impulse",
     "NoiseConfig",
     "ScenarioConfig",
-    "PerturbExperiment",
-    "SimulateExperiment",
-    "ValidateExperiment",
-    "LegExperiment",
-    "CalibrateExperiment",
     "LegLoad",
-    "LogConfig",
     "SlotConfig",
+    "num_field",
+    "vec_field",
+    "choice_field",
+    "check_scenario",
     "validate",
+    "config_from_yaml",
     "register_schemas",
 ]
 
 
-class ConfigError(ValueError):
-    """A configuration value the user must change; ``str()`` is one line saying what to fix."""
-
-
-def _num(default: float, *, lo: float | None = None, hi: float | None = None,
-         lo_open: bool = False, unit: str = "") -> Any:
+def num_field(
+    default: float, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False, unit: str = ""
+) -> Any:
     """A float/int field with a declared physical range, checked by :func:`validate`."""
     return field(default=default, metadata={"lo": lo, "hi": hi, "lo_open": lo_open, "unit": unit})
 
 
-def _vec(default: list, *, length: int | None = None, lo: float | None = None,
-         hi: float | None = None, lo_open: bool = False, unit: str = "") -> Any:
+def vec_field(
+    default: list,
+    *,
+    length: int | None = None,
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    unit: str = "",
+) -> Any:
     """A list field with a fixed length and an element-wise range."""
-    return field(default_factory=lambda: list(default),
-                 metadata={"length": length, "lo": lo, "hi": hi, "lo_open": lo_open, "unit": unit})
+    return field(
+        default_factory=lambda: list(default),
+        metadata={"length": length, "lo": lo, "hi": hi, "lo_open": lo_open, "unit": unit},
+    )
 
 
-def _choice(default: str, *choices: str) -> Any:
-    return field(default=default, metadata={"choices": choices})
+def choice_field(default: str, *choices: str, among: Callable[[], tuple[str, ...]] | None = None) -> Any:
+    """A string field restricted to ``choices``, or to what ``among()`` lists when it is checked
+    (a registry's variants: the list follows the modules present)."""
+    return field(default=default, metadata={"choices": among or choices})
+
+
+def _backend_names() -> tuple[str, ...]:
+    from .backends import BACKENDS
+
+    return BACKENDS.names()
+
+
+def _plant_names() -> tuple[str, ...]:
+    from .plants import PLANTS
+
+    return PLANTS.names()
+
+
+def _controller_names() -> tuple[str, ...]:
+    from .controllers import CONTROLLERS
+
+    return CONTROLLERS.names()
 
 
 # --------------------------------------------------------------------------- robot
@@ -70,8 +105,8 @@ def _choice(default: str, *choices: str) -> Any:
 class TorsoConfig:
     """Rigid cuboid torso (paper Sec. II: 125.5 x 85.5 x 34 mm, m_c = 2.0 kg)."""
 
-    mass: float = _num(2.0, lo=0.0, lo_open=True, unit="kg")
-    size: list[float] = _vec([0.1255, 0.0855, 0.034], length=3, lo=0.0, lo_open=True, unit="m")
+    mass: float = num_field(2.0, lo=0.0, lo_open=True, unit="kg")
+    size: list[float] = vec_field([0.1255, 0.0855, 0.034], length=3, lo=0.0, lo_open=True, unit="m")
 
 
 @dataclass
@@ -79,61 +114,68 @@ class LegConfig:
     """One TPU leg (paper Sec. III; rest shape and yaw from the authors' public code)."""
 
     names: list[str] = field(default_factory=lambda: ["FL", "RL", "RR", "FR"])
-    yaw_deg: list[float] = _vec([45.0, 135.0, 225.0, 315.0], length=4, lo=-360.0, hi=360.0, unit="deg")
-    length: float = _num(0.19, lo=0.0, lo_open=True, unit="m")
-    n_nodes: int = _num(31, lo=3, unit="nodes")
-    mass: float = _num(0.04, lo=0.0, unit="kg")
-    width: float = _num(0.020, lo=0.0, lo_open=True, unit="m")
-    thickness_root: float = _num(0.0135, lo=0.0, lo_open=True, unit="m")
-    thickness_tip: float = _num(0.0035, lo=0.0, lo_open=True, unit="m")
-    youngs_modulus: float = _num(1.0e7, lo=0.0, lo_open=True, unit="Pa")
-    density: float = _num(1200.0, lo=0.0, lo_open=True, unit="kg/m^3")
+    yaw_deg: list[float] = vec_field([45.0, 135.0, 225.0, 315.0], length=4, lo=-360.0, hi=360.0, unit="deg")
+    length: float = num_field(0.19, lo=0.0, lo_open=True, unit="m")
+    n_nodes: int = num_field(31, lo=3, unit="nodes")
+    mass: float = num_field(0.04, lo=0.0, unit="kg")
+    width: float = num_field(0.020, lo=0.0, lo_open=True, unit="m")
+    thickness_root: float = num_field(0.0135, lo=0.0, lo_open=True, unit="m")
+    thickness_tip: float = num_field(0.0035, lo=0.0, lo_open=True, unit="m")
+    youngs_modulus: float = num_field(1.0e7, lo=0.0, lo_open=True, unit="Pa")
+    density: float = num_field(1200.0, lo=0.0, lo_open=True, unit="kg/m^3")
     # Rest shape z(x) = c3 x^3 + c2 x^2 + c1 x + c0 in the leg plane (root at x = 0).
-    rest_shape_coeffs: list[float] = _vec([6.356, -1.810, 0.0, 0.02175], length=4, unit="m")
-    rest_shape: str = _choice("cubic", "cubic", "straight")
+    rest_shape_coeffs: list[float] = vec_field([6.356, -1.810, 0.0, 0.02175], length=4, unit="m")
+    rest_shape: str = choice_field("cubic", "cubic", "straight")
     # cosserat: our rod (stretch, shear, bending coupled); paper: eqs. (2)-(4) + restoring spring
-    model: str = _choice("cosserat", "cosserat", "paper")
-    restoring_stiffness: float = _num(800.0, lo=0.0, unit="N/m")  # paper's k_r, used by model=paper only
-    pulley_radius: float = _num(0.01, lo=0.0, lo_open=True, unit="m")
-    tendon_max_deg: float = _num(116.28, lo=0.0, lo_open=True, hi=360.0, unit="deg")
+    model: str = choice_field("cosserat", "cosserat", "paper")
+    restoring_stiffness: float = num_field(800.0, lo=0.0, unit="N/m")  # paper's k_r, used by model=paper only
+    pulley_radius: float = num_field(0.01, lo=0.0, lo_open=True, unit="m")
+    tendon_max_deg: float = num_field(116.28, lo=0.0, lo_open=True, hi=360.0, unit="deg")
     # Viscous damping of each node's (and element's) motion relative to the root, 1/s.
-    damping_per_s: float = _num(20.0, lo=0.0, unit="1/s")
+    damping_per_s: float = num_field(20.0, lo=0.0, unit="1/s")
 
 
 @dataclass
 class ContactConfig:
     """Penalty ground contact (paper eq. 5) and Coulomb friction."""
 
-    stiffness: float = _num(1.0e5, lo=0.0, lo_open=True, unit="N/m")
-    damping: float = _num(10.0, lo=0.0, unit="N s/m")
-    friction: float = _num(0.1, lo=0.0, unit="")
-    slip_velocity: float = _num(1.0e-3, lo=0.0, lo_open=True, unit="m/s")  # friction regularisation
+    stiffness: float = num_field(1.0e5, lo=0.0, lo_open=True, unit="N/m")
+    damping: float = num_field(10.0, lo=0.0, unit="N s/m")
+    friction: float = num_field(0.1, lo=0.0, unit="")
+    slip_velocity: float = num_field(1.0e-3, lo=0.0, lo_open=True, unit="m/s")  # friction regularisation
 
 
 @dataclass
 class TendonConfig:
     """The tendon: a cable at an offset below the leg's centreline over its proximal part."""
 
-    offset: float = _num(0.010, lo=0.0, lo_open=True, unit="m")
-    routed_fraction: float = _num(2.0 / 3.0, lo=0.0, lo_open=True, hi=1.0, unit="")
-    stiffness: float = _num(2.0e4, lo=0.0, lo_open=True, unit="N/m")
-    slack: float = _num(0.0, lo=0.0, unit="m")
+    offset: float = num_field(0.010, lo=0.0, lo_open=True, unit="m")
+    routed_fraction: float = num_field(2.0 / 3.0, lo=0.0, lo_open=True, hi=1.0, unit="")
+    stiffness: float = num_field(2.0e4, lo=0.0, lo_open=True, unit="N/m")
+    slack: float = num_field(0.0, lo=0.0, unit="m")
 
 
 @dataclass
 class ServoConfig:
-    """Position-controlled XL430-like servo: first-order lag, stall torque, pulley."""
+    """Position-controlled XL430-W250 (``slotexp/soft/servo.py``): first-order lag, speed-torque line.
 
-    stall_torque: float = _num(1.4, lo=0.0, lo_open=True, unit="N m")
-    time_constant: float = _num(0.005, lo=0.0, lo_open=True, unit="s")
+    At 11.1 V (the paper's 1.4 N m): stall torque 1.4 N m, no-load speed 57 rpm
+    (ROBOTIS e-Manual). ``profile_velocity_rpm`` is the Profile Velocity ``slot
+    hardware`` writes to the servos (0: none), so simulation and robot share it.
+    """
+
+    stall_torque: float = num_field(1.4, lo=0.0, lo_open=True, unit="N m")
+    time_constant: float = num_field(0.005, lo=0.0, lo_open=True, unit="s")
+    no_load_speed_rpm: float = num_field(57.0, lo=0.0, lo_open=True, unit="rpm")
+    profile_velocity_rpm: float = num_field(57.0, lo=0.0, hi=61.0, unit="rpm")
 
 
 @dataclass
 class ActuationConfig:
     """Affine force-to-tendon map theta[deg] = (f_z - offset) / slope (paper eq. 11)."""
 
-    slope_n_per_deg: float = _num(0.107, lo=0.0, lo_open=True, unit="N/deg")
-    offset_n: float = _num(-6.91, unit="N")
+    slope_n_per_deg: float = num_field(0.107, lo=0.0, lo_open=True, unit="N/deg")
+    offset_n: float = num_field(-6.91, unit="N")
 
 
 @dataclass
@@ -150,9 +192,9 @@ class RobotConfig:
 # --------------------------------------------------------------------------- simulation
 @dataclass
 class SimConfig:
-    gravity: float = _num(9.81, lo=0.0, hi=100.0, unit="m/s^2")
-    dt: float = _num(1.0e-3, lo=0.0, lo_open=True, hi=1.0 / 30.0, unit="s")
-    seed: int = _num(0, lo=0, unit="")
+    gravity: float = num_field(9.81, lo=0.0, hi=100.0, unit="m/s^2")
+    dt: float = num_field(1.0e-3, lo=0.0, lo_open=True, hi=1.0 / 30.0, unit="s")
+    seed: int = num_field(0, lo=0, unit="")
 
 
 @dataclass
@@ -168,38 +210,43 @@ class GaitConfig:
     """
 
     name: str = "walk"
+    style: str = "walk"  # the gait library's style the soft-leg gait controllers use (controller.library)
     phases: list[list[int]] = field(default_factory=lambda: [[15, 1, 0, 1, 0], [15, 0, 1, 0, 1]])
-    velocity: list[float] = _vec([0.08, 0.0], length=2, lo=-1.0, hi=1.0, unit="m/s")
-    yaw_rate: float = _num(0.0, lo=-2.0, hi=2.0, unit="rad/s")
-    height: float = _num(0.04, lo=0.0, lo_open=True, hi=0.5, unit="m")
-    mu_stance: float = _num(0.6, lo=0.0, unit="")
-    mu_swing: float = _num(0.2, lo=0.0, unit="")
+    velocity: list[float] = vec_field([0.08, 0.0], length=2, lo=-1.0, hi=1.0, unit="m/s")
+    yaw_rate: float = num_field(0.0, lo=-2.0, hi=2.0, unit="rad/s")
+    height: float = num_field(0.04, lo=0.0, lo_open=True, hi=0.5, unit="m")
+    mu_stance: float = num_field(0.6, lo=0.0, unit="")
+    mu_swing: float = num_field(0.2, lo=0.0, unit="")
     swing_contact: bool = True
     # Tendon schedule: a contracting (swing) leg's tendon angle gets this much on top of
     # the MPC's force-to-angle command, with a ramp / hold / decay over its phase.
-    tendon_amplitude_deg: float = _num(25.0, lo=0.0, hi=360.0, unit="deg")
-    tendon_ramp: float = _num(0.2, lo=0.0, hi=1.0, unit="of the phase")
-    tendon_hold: float = _num(0.6, lo=0.0, hi=1.0, unit="of the phase")
-    tendon_decay: float = _num(0.2, lo=0.0, hi=1.0, unit="of the phase")
+    tendon_amplitude_deg: float = num_field(25.0, lo=0.0, hi=360.0, unit="deg")
+    tendon_ramp: float = num_field(0.2, lo=0.0, hi=1.0, unit="of the phase")
+    tendon_hold: float = num_field(0.6, lo=0.0, hi=1.0, unit="of the phase")
+    tendon_decay: float = num_field(0.2, lo=0.0, hi=1.0, unit="of the phase")
 
 
 @dataclass
 class MpcConfig:
     """Convex MPC over ground-reaction forces (paper Sec. V)."""
 
-    rate_hz: float = _num(30.0, lo=0.0, lo_open=True, hi=1000.0, unit="Hz")
-    horizon: int = _num(15, lo=1, hi=200, unit="steps")
+    rate_hz: float = num_field(30.0, lo=0.0, lo_open=True, hi=1000.0, unit="Hz")
+    horizon: int = num_field(15, lo=1, hi=200, unit="steps")
     # Paper: Q = diag(...)/1000, R = 1e-8 I. Order: roll pitch yaw px py pz wx wy wz vx vy vz.
-    q_diag: list[float] = _vec([0.1e-3, 0.1e-3, 0.1e-3, 0.0, 0.0, 100e-3, 0.01e-3, 0.01e-3, 0.01e-3,
-                                20e-3, 0.1e-3, 0.0], length=12, lo=0.0, unit="")
-    r_weight: float = _num(1.0e-8, lo=0.0, unit="")
-    f_max: float = _num(6.0, lo=0.0, lo_open=True, unit="N")
-    f_min_stance: float = _num(0.0, lo=0.0, unit="N")
+    q_diag: list[float] = vec_field(
+        [0.1e-3, 0.1e-3, 0.1e-3, 0.0, 0.0, 100e-3, 0.01e-3, 0.01e-3, 0.01e-3, 20e-3, 0.1e-3, 0.0],
+        length=12,
+        lo=0.0,
+        unit="",
+    )
+    r_weight: float = num_field(1.0e-8, lo=0.0, unit="")
+    f_max: float = num_field(6.0, lo=0.0, lo_open=True, unit="N")
+    f_min_stance: float = num_field(0.0, lo=0.0, unit="N")
     # |sum f_z - m g| <= band. 0 reproduces the paper's strict equality (9).
-    force_balance_band: float = _num(2.0, lo=0.0, unit="N")
+    force_balance_band: float = num_field(2.0, lo=0.0, unit="N")
     # The QP objective is multiplied by this before solving; it does not change the
     # minimiser but keeps the paper's 1e-4..1e-8 weights away from solver tolerances.
-    objective_scale: float = _num(1000.0, lo=0.0, lo_open=True, unit="")
+    objective_scale: float = num_field(1000.0, lo=0.0, lo_open=True, unit="")
 
 
 @dataclass
@@ -213,19 +260,56 @@ class SolverConfig:
     or the deadline counts as failed and the controller applies the last feasible input.
     """
 
-    name: str = _choice("daqp", "clarabel", "scs", "osqp", "osqp_direct", "daqp")
-    eps_abs: float = _num(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
-    eps_rel: float = _num(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
-    max_iters: int = _num(10000, lo=1, unit="")
+    name: str = choice_field("daqp", among=_backend_names)
+    eps_abs: float = num_field(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
+    eps_rel: float = num_field(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
+    max_iters: int = num_field(10000, lo=1, unit="")
     warm_start: bool = True
-    time_limit_s: float = _num(0.0, lo=0.0, unit="s")  # 0 = no limit
+    time_limit_s: float = num_field(0.0, lo=0.0, unit="s")  # 0 = no limit
     verbose: bool = False
 
 
 @dataclass
 class PlantConfig:
-    name: str = _choice("ideal", "ideal", "cosserat")
-    integrator: str = _choice("implicit", "implicit", "symplectic")  # soft legs only
+    name: str = choice_field("ideal", among=_plant_names)
+    integrator: str = choice_field("implicit", "implicit", "symplectic")  # soft legs only
+
+
+@dataclass
+class PrimitiveConfig:
+    """One periodic tendon schedule of a gait style (``slotexp/locomotion/primitives.py``) and what it measured."""
+
+    name: str = ""
+    heading_deg: float | None = None  # measured direction of travel, body frame; None: turning in place
+    speed_mps: float = num_field(0.0, lo=0.0, unit="m/s")  # measured mean speed along heading_deg
+    yaw_rate_dps: float = num_field(0.0, unit="deg/s")  # measured mean yaw rate
+    base_deg: list[float] = vec_field([60.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
+    amplitude_deg: list[float] = vec_field([0.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
+    phase: list[float] = vec_field([0.0] * 4, length=4, lo=-10.0, hi=10.0, unit="cycles")
+
+
+@dataclass
+class GaitStyleConfig:
+    """A gait style: the clock and waveform its primitives share, and the primitives."""
+
+    frequency_hz: float = num_field(1.5, lo=0.0, lo_open=True, hi=10.0, unit="Hz")
+    duty: float = num_field(0.5, lo=0.0, lo_open=True, hi=1.0, unit="of the cycle")
+    sharpness: float = num_field(4.0, lo=0.0, lo_open=True, hi=100.0, unit="")
+    primitives: list[PrimitiveConfig] = field(default_factory=list)
+
+
+@dataclass
+class ControllerConfig:
+    """Which controller turns the MPC's plan into commands (``slotexp/controllers``), and its settings.
+
+    ``library`` and the gains are used by the gait controllers (``gait_mpc``, ``open_loop``).
+    """
+
+    name: str = choice_field("paper", among=_controller_names)
+    library: dict[str, GaitStyleConfig] = field(default_factory=dict)  # style name -> style (conf/library/)
+    # gait_mpc: each step adds this fraction of the MPC's planned change of velocity (and yaw rate) to the gait command
+    velocity_gain: float = num_field(0.02, lo=0.0, hi=1.0, unit="")
+    yaw_gain: float = num_field(0.02, lo=0.0, hi=1.0, unit="")
 
 
 # --------------------------------------------------------------------------- scenarios
@@ -254,17 +338,17 @@ class StateOffset:
 class Impulse:
     """An instantaneous push on the torso at time ``t`` (world frame, about the CoM)."""
 
-    t: float = _num(0.0, lo=0.0, unit="s")
-    linear: list[float] = _vec([0.0, 0.0, 0.0], length=3, unit="N s")
-    angular: list[float] = _vec([0.0, 0.0, 0.0], length=3, unit="N m s")
+    t: float = num_field(0.0, lo=0.0, unit="s")
+    linear: list[float] = vec_field([0.0, 0.0, 0.0], length=3, unit="N s")
+    angular: list[float] = vec_field([0.0, 0.0, 0.0], length=3, unit="N m s")
 
 
 @dataclass
 class NoiseConfig:
     """Gaussian noise: on the state the MPC sees, and as a force on the torso."""
 
-    measurement_sigma: float = _num(0.0, lo=0.0, unit="SI per state")
-    process_force_sigma: float = _num(0.0, lo=0.0, unit="N")
+    measurement_sigma: float = num_field(0.0, lo=0.0, unit="SI per state")
+    process_force_sigma: float = num_field(0.0, lo=0.0, unit="N")
 
 
 @dataclass
@@ -277,92 +361,33 @@ class ScenarioConfig:
     deterministic: bool = True
 
 
-# --------------------------------------------------------------------------- experiments
-@dataclass
-class PerturbExperiment:
-    """Paper Table I: every listed scenario on the walk gait."""
-
-    name: str = "perturb"
-    duration: float = _num(25.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
-    scenarios: list[str] = field(default_factory=lambda: [
-        "baseline", "roll", "pitch", "height", "velocity", "combined", "noise"])
-    n_jobs: int = _num(0, lo=0, unit="processes")  # 0 = one per core
-    settle_fraction: float = _num(0.01, lo=0.0, lo_open=True, hi=1.0, unit="")
-    settle_hold_s: float = _num(1.0, lo=0.0, unit="s")
-
-
-@dataclass
-class SimulateExperiment:
-    """Closed-loop run of one gait (paper Figs. 4 and 6)."""
-
-    name: str = "simulate"
-    duration: float = _num(10.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
-    scenario: str = "baseline"
-    drift_distance: float = _num(0.8, lo=0.0, lo_open=True, unit="m")
-
-
-@dataclass
-class ValidateExperiment:
-    """Compare a trajectory with a reference (another run's log, or a marker CSV)."""
-
-    name: str = "validate"
-    reference: Optional[str] = None
-    candidate: Optional[str] = None  # None: simulate the current config
-    duration: float = _num(10.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
-    scenario: str = "baseline"
-    align: str = _choice("start", "start", "absolute")
-    offset_s: float = 0.0
-    markers: Optional[list[str]] = None
-
-
+# --------------------------------------------------------------------------- single leg
 @dataclass
 class LegLoad:
     """A single leg clamped at its root (experiments ``leg`` and ``calibrate``)."""
 
-    tip_force: list[float] = _vec([0.0, 0.0], length=2, unit="N")  # [along the leg plane, vertical]
-    tip_moment: float = _num(0.0, unit="N m")
-    tendon_deg: float = _num(0.0, lo=0.0, hi=360.0, unit="deg")
+    tip_force: list[float] = vec_field([0.0, 0.0], length=2, unit="N")  # [along the leg plane, vertical]
+    tip_moment: float = num_field(0.0, unit="N m")
+    tendon_deg: float = num_field(0.0, lo=0.0, hi=360.0, unit="deg")
     ground: bool = True
-    root_height: Optional[float] = None   # m above the ground; None: the rest shape's (tip just touching)
-    settle_time: float = _num(3.0, lo=0.0, lo_open=True, unit="s")
-    dt: float = _num(1.0e-4, lo=0.0, lo_open=True, hi=1e-2, unit="s")
-    integrator: str = _choice("implicit", "implicit", "symplectic")
-
-
-@dataclass
-class LegExperiment:
-    """Static response of one clamped leg to ``leg_load``: tip position and angle."""
-
-    name: str = "leg"
-
-
-@dataclass
-class CalibrateExperiment:
-    """Quasi-static sweep of tendon angle against ground normal force: theta = (f_z - b) / a."""
-
-    name: str = "calibrate"
-    angles: int = _num(25, lo=3, hi=1000, unit="points")
-    max_deg: Optional[float] = None     # None: robot.leg.tendon_max_deg
-    fit_min_force: float = _num(0.5, lo=0.0, unit="N")  # fit only where the foot is loaded
-
-
-@dataclass
-class LogConfig:
-    enabled: bool = True
+    root_height: float | None = None  # m above the ground; None: the rest shape's (tip just touching)
+    settle_time: float = num_field(3.0, lo=0.0, lo_open=True, unit="s")
+    dt: float = num_field(1.0e-4, lo=0.0, lo_open=True, hi=1e-2, unit="s")
+    integrator: str = choice_field("implicit", "implicit", "symplectic")
 
 
 @dataclass
 class SlotConfig:
-    """The whole run. ``experiment`` is one of the experiment dataclasses above."""
+    """The whole run. ``experiment`` is the schema of the selected experiment (``slotexp.jobs``)."""
 
     robot: RobotConfig = field(default_factory=RobotConfig)
     gait: GaitConfig = field(default_factory=GaitConfig)
     scenarios: dict[str, ScenarioConfig] = field(default_factory=dict)
     solver: SolverConfig = field(default_factory=SolverConfig)
     plant: PlantConfig = field(default_factory=PlantConfig)
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     mpc: MpcConfig = field(default_factory=MpcConfig)
-    log: LogConfig = field(default_factory=LogConfig)
     leg_load: LegLoad = field(default_factory=LegLoad)
     experiment: Any = None
 
@@ -398,9 +423,10 @@ def _walk(obj: Any, path: str) -> None:
             value = getattr(obj, f.name)
             sub = f"{path}.{f.name}" if path else f.name
             meta = dict(f.metadata)
-            if "choices" in meta and value not in meta["choices"]:
-                raise ConfigError(f"{sub} = {value!r} is not supported: choose one of "
-                                  f"{', '.join(meta['choices'])}")
+            if "choices" in meta:
+                choices = meta["choices"]() if callable(meta["choices"]) else meta["choices"]
+                if value not in choices:
+                    raise ConfigError(f"{sub} = {value!r} is not supported: choose one of {', '.join(choices)}")
             if "length" in meta and isinstance(value, list):
                 if meta["length"] is not None and len(value) != meta["length"]:
                     raise ConfigError(f"{sub} has {len(value)} entries: it needs exactly {meta['length']}")
@@ -439,55 +465,71 @@ def validate(cfg: SlotConfig) -> SlotConfig:
     _check_gait(cfg.gait)
     g = cfg.gait
     if g.tendon_ramp + g.tendon_hold + g.tendon_decay > 1.0 + 1e-9:
-        raise ConfigError(f"gait.tendon_ramp + tendon_hold + tendon_decay = "
-                          f"{g.tendon_ramp + g.tendon_hold + g.tendon_decay:g}: they share one phase, keep it <= 1")
-    if leg.model == "paper":
-        if cfg.plant.name == "cosserat" and cfg.plant.integrator != "symplectic":
-            raise ConfigError("robot.leg.model=paper has no Jacobian for the implicit step: add "
-                              "plant.integrator=symplectic sim.dt=2e-5")
-        if cfg.leg_load.integrator != "symplectic" and getattr(cfg.experiment, "name", "") in ("leg", "calibrate"):
-            raise ConfigError("robot.leg.model=paper has no Jacobian for the implicit step: add "
-                              "leg_load.integrator=symplectic leg_load.dt=2e-5")
+        raise ConfigError(
+            f"gait.tendon_ramp + tendon_hold + tendon_decay = "
+            f"{g.tendon_ramp + g.tendon_hold + g.tendon_decay:g}: they share one phase, keep it <= 1"
+        )
+    if leg.model == "paper" and cfg.plant.name == "cosserat" and cfg.plant.integrator != "symplectic":
+        raise ConfigError(
+            "robot.leg.model=paper has no Jacobian for the implicit step: add plant.integrator=symplectic sim.dt=2e-5"
+        )
+    for name, style in cfg.controller.library.items():
+        ticks = cfg.mpc.rate_hz / style.frequency_hz
+        if abs(ticks - round(ticks)) > 1e-6:
+            raise ConfigError(
+                f"controller.library.{name}.frequency_hz = {style.frequency_hz:g} Hz is not mpc.rate_hz / n: a gait's "
+                f"cycle must hold a whole number of controller ticks (the sampled waveform otherwise drifts and its "
+                f"speed beats), e.g. {cfg.mpc.rate_hz / max(1, round(ticks)):.6g}"
+            )
     if cfg.mpc.f_min_stance > cfg.mpc.f_max:
-        raise ConfigError(f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = "
-                          f"{cfg.mpc.f_max:g} N: lower it")
+        raise ConfigError(
+            f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = {cfg.mpc.f_max:g} N: lower it"
+        )
     exp = cfg.experiment
-    if isinstance(exp, PerturbExperiment):
-        for name in exp.scenarios:
-            if name not in cfg.scenarios:
-                raise ConfigError(f"experiment.scenarios names unknown scenario {name!r}: choose from "
-                                  f"{', '.join(sorted(cfg.scenarios))}")
-        if not exp.scenarios:
-            raise ConfigError("experiment.scenarios is empty: list at least one scenario")
-    elif isinstance(exp, (SimulateExperiment, ValidateExperiment)):
-        if exp.scenario not in cfg.scenarios:
-            raise ConfigError(f"experiment.scenario = {exp.scenario!r} is unknown: choose from "
-                              f"{', '.join(sorted(cfg.scenarios))}")
-        if isinstance(exp, ValidateExperiment) and not exp.reference:
-            raise ConfigError("experiment.reference is not set: pass experiment.reference=<run dir, .mcap "
-                              "log or marker .csv>")
-    elif exp is None:
-        raise ConfigError("no experiment selected: pass experiment=perturb, simulate, validate, leg or calibrate")
+    if exp is None:
+        from .jobs import run_names
+
+        raise ConfigError(f"no experiment selected: pass experiment=<name>, one of {', '.join(run_names())}")
+    check = getattr(exp, "check", None)
+    if check is not None:
+        check(cfg)
     return cfg
 
 
-EXPERIMENT_SCHEMAS = {
-    "perturb": PerturbExperiment,
-    "simulate": SimulateExperiment,
-    "validate": ValidateExperiment,
-    "leg": LegExperiment,
-    "calibrate": CalibrateExperiment,
-}
+def check_scenario(cfg: SlotConfig, name: str, key: str) -> None:
+    """``key`` names scenario ``name``: it must be one of ``cfg.scenarios``."""
+    if name not in cfg.scenarios:
+        raise ConfigError(f"{key} unknown scenario {name!r}: choose from {', '.join(sorted(cfg.scenarios))}")
 
 
 def register_schemas() -> None:
-    """Register the schemas with Hydra's ConfigStore (called by the CLI only)."""
+    """Register the root schema and every experiment's with Hydra's ConfigStore (called by the CLI only)."""
     from hydra.core.config_store import ConfigStore
+
+    from .jobs import EXPERIMENTS
 
     cs = ConfigStore.instance()
     cs.store(name="slot_schema", node=SlotConfig)
-    for name, schema in EXPERIMENT_SCHEMAS.items():
-        cs.store(group="experiment", name=f"{name}_schema", node=schema)
-    from .hardware.config import register_hardware_schemas  # `slot hardware`'s root schema
+    for name, experiment in EXPERIMENTS.load_all().items():
+        cs.store(group="experiment", name=f"{name}_schema", node=experiment.schema)
 
-    register_hardware_schemas(cs)
+
+def config_from_yaml(text: str, experiment_schema: type, root: type = None) -> SlotConfig:
+    """The typed config a run stored in its log (resolved YAML), checked again.
+
+    ``root`` is the root schema (:class:`SlotConfig` unless the run was a hardware run).
+    A log whose config no longer fits the schema (written by another version) is
+    reported as a :class:`ConfigError`.
+    """
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    root = root or SlotConfig
+    base = OmegaConf.structured(root(experiment=experiment_schema()))
+    try:
+        return validate(OmegaConf.to_object(OmegaConf.merge(base, OmegaConf.create(text))))
+    except OmegaConfBaseException as exc:
+        raise ConfigError(
+            f"the config stored in this log does not fit this version's schema "
+            f"({str(exc).splitlines()[0]}): rerun it with this version"
+        ) from None

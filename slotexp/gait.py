@@ -58,10 +58,10 @@ class GaitMatrix:
 class ContactPlan:
     """What the MPC needs per leg and step: contact, friction and normal-force bounds."""
 
-    stance: np.ndarray   # (H, 4) bool
-    mu: np.ndarray       # (H, 4)
-    fz_min: np.ndarray   # (H, 4)
-    fz_max: np.ndarray   # (H, 4)
+    stance: np.ndarray  # (H, 4) bool
+    mu: np.ndarray  # (H, 4)
+    fz_min: np.ndarray  # (H, 4)
+    fz_max: np.ndarray  # (H, 4)
 
 
 def contact_plan(stance: np.ndarray, gait: GaitConfig, f_min_stance: float, f_max: float) -> ContactPlan:

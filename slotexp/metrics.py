@@ -3,6 +3,7 @@
 stage cost  J(t) = 1000 * e^T Q e, e = x(t) - x_ref(t), Q the MPC's Q (so the
             factor 1000 undoes the paper's 1/1000 and J uses the paper's listed
             weights); angle errors are wrapped to [-pi, pi).
+cycle cost  the same of the error averaged over the last gait cycle (walking soft legs).
 settle time the earliest t_s with J(t) <= fraction * max J for every t >= t_s,
             provided the run stays settled for at least ``hold`` seconds after t_s;
             NaN otherwise (never settled, or only dipped in at the very end).
@@ -29,6 +30,22 @@ def stage_cost(x: np.ndarray, x_ref: np.ndarray, q_diag: np.ndarray) -> np.ndarr
     """J = 1000 e^T Q e for one state (12,) or a trajectory (n, 12)."""
     e = state_error(x, x_ref)
     return COST_SCALE * np.sum(np.asarray(q_diag) * e**2, axis=-1)
+
+
+def cycle_mean_cost(x: np.ndarray, x_ref: np.ndarray, q_diag: np.ndarray, window: int) -> np.ndarray:
+    """J of the error averaged over the last ``window`` steps (a gait cycle): 1000 ebar^T Q ebar.
+
+    A walking soft robot's state swings within every gait cycle (the stick-slip that
+    moves it); averaging the error over one cycle before weighing it measures how far
+    the motion is from the reference, not the gait's own swing. ``window`` = 1 is the
+    stage cost. The average is causal (the steps so far, at most ``window``).
+    """
+    e = state_error(x, x_ref)
+    csum = np.cumsum(np.vstack([np.zeros((1, e.shape[1])), e]), axis=0)
+    k = np.arange(1, e.shape[0] + 1)
+    lo = np.maximum(0, k - int(window))
+    mean = (csum[k] - csum[lo]) / (k - lo)[:, None]
+    return COST_SCALE * np.sum(np.asarray(q_diag) * mean**2, axis=-1)
 
 
 def settle_time(t: np.ndarray, cost: np.ndarray, fraction: float, hold: float = 1.0) -> float:

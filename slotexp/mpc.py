@@ -20,32 +20,28 @@ The QP (paper eq. 8-9) is the same for every backend:
 
 Backends (``slotexp/backends``) differ only in how they solve it: through CVXPY
 (``clarabel``, ``scs``, ``osqp``), sparse OSQP called directly (``osqp_direct``)
-or condensed onto the forces and solved by DAQP (``daqp``). :func:`make_mpc` picks
-one from :class:`~slotexp.config.SolverConfig`; each returns an :class:`MpcSolution`.
+or condensed onto the forces and solved by DAQP (``daqp``).
+:func:`slotexp.backends.make_mpc` picks one from :class:`~slotexp.config.SolverConfig`;
+each returns an :class:`MpcSolution`.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
-from numba import njit
 
 from .body import rot_z
-from .config import MpcConfig, SolverConfig
+from .config import MpcConfig
 from .gait import ContactPlan
+from .jit import njit
 
 N_STATE = 12
 N_INPUT = 12
 CONSTRAINT_GROUPS = ("f_max", "f_min", "friction", "balance")
 # Statuses a backend reports when its plan may be applied (CVXPY's names, shared by all backends).
 SUCCESS = frozenset({"optimal", "optimal_inaccurate"})
-
-
-def skew(r: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
 
 
 def rotation_from_euler(rpy: np.ndarray) -> np.ndarray:
@@ -58,15 +54,20 @@ def rotation_from_euler(rpy: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _model(x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray,
-           gravity: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _model(
+    x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray, gravity: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A_c, B_c, g_c in closed form (no matrix inverses): the hot path of every backend."""
     cr, sr = np.cos(x[0]), np.sin(x[0])
     cp, sp = np.cos(x[1]), np.sin(x[1])
     cy, sy = np.cos(x[2]), np.sin(x[2])
-    rot = np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                    [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                    [-sp, cp * sr, cp * cr]])
+    rot = np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
     iw_inv = rot @ inertia_body_inv @ rot.T
     a = np.zeros((12, 12))
     # E^-1 of the Z-Y-X Euler-rate matrix E(pitch, yaw)
@@ -79,7 +80,7 @@ def _model(x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv:
     for leg in range(4):
         r = lever_arms[leg]
         sk = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
-        b[6:9, 3 * leg:3 * leg + 3] = iw_inv @ sk
+        b[6:9, 3 * leg : 3 * leg + 3] = iw_inv @ sk
         for i in range(3):
             b[9 + i, 3 * leg + i] = 1.0 / mass
     g = np.zeros(12)
@@ -87,26 +88,32 @@ def _model(x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv:
     return a, b, g
 
 
-def continuous_model(x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body: np.ndarray,
-                     gravity: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def continuous_model(
+    x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body: np.ndarray, gravity: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A_c, B_c, g_c of dx/dt = A_c x + B_c u + g_c, frozen at state ``x``.
 
     ``lever_arms[i]`` is foot i relative to the CoM, world frame.
     """
-    return _model(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(lever_arms, dtype=float),
-                  float(mass), np.linalg.inv(np.asarray(inertia_body, dtype=float)), float(gravity))
+    return _model(
+        np.ascontiguousarray(x, dtype=float),
+        np.ascontiguousarray(lever_arms, dtype=float),
+        float(mass),
+        np.linalg.inv(np.asarray(inertia_body, dtype=float)),
+        float(gravity),
+    )
 
 
 @njit(cache=True)
-def _discretize(a: np.ndarray, b: np.ndarray, g: np.ndarray, period: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _discretize(
+    a: np.ndarray, b: np.ndarray, g: np.ndarray, period: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     eye = np.eye(a.shape[0])
     gamma = eye * period + a * (period**2 / 2.0)
     return eye + a * period, gamma @ b, gamma @ g
 
 
-def discretize(a: np.ndarray, b: np.ndarray, g: np.ndarray, period: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def discretize(a: np.ndarray, b: np.ndarray, g: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact zero-order hold for a nilpotent A (A @ A = 0)."""
     f64 = np.ascontiguousarray
     return _discretize(f64(a, dtype=float), f64(b, dtype=float), f64(g, dtype=float), float(period))
@@ -114,24 +121,16 @@ def discretize(a: np.ndarray, b: np.ndarray, g: np.ndarray, period: float
 
 @dataclass
 class MpcSolution:
-    forces: np.ndarray        # (4, 3) first input of the plan
-    plan_fz: np.ndarray       # (H, 4) planned normal forces
-    predicted: np.ndarray     # (H + 1, 12) predicted states
+    forces: np.ndarray  # (4, 3) first input of the plan
+    plan_fz: np.ndarray  # (H, 4) planned normal forces
+    predicted: np.ndarray  # (H + 1, 12) predicted states
     status: str
     success: bool
     iterations: int
-    solve_time_s: float       # solver-reported time
-    wall_time_s: float        # build-or-update + solve, as the loop sees it
-    objective: float          # unscaled objective (paper eq. 8, summed over k = 1..H)
+    solve_time_s: float  # solver-reported time
+    wall_time_s: float  # build-or-update + solve, as the loop sees it
+    objective: float  # unscaled objective (paper eq. 8, summed over k = 1..H)
     inputs: np.ndarray | None = None  # (H, 12) the whole planned input sequence (None if the solve failed)
-
-
-class Mpc(Protocol):
-    """What the controller needs from a backend: one solve per MPC step."""
-
-    def solve(self, x: np.ndarray, x_ref: np.ndarray, lever_arms: np.ndarray, plan: ContactPlan) -> MpcSolution:
-        """Forces for state ``x``; ``x_ref`` is (H, 12), ``plan`` arrays are (H, 4)."""
-        ...
 
 
 class DiscreteModel:
@@ -139,8 +138,15 @@ class DiscreteModel:
 
     __slots__ = ("a", "a_c", "b", "g")
 
-    def __init__(self, x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray,
-                 gravity: float, period: float) -> None:
+    def __init__(
+        self,
+        x: np.ndarray,
+        lever_arms: np.ndarray,
+        mass: float,
+        inertia_body_inv: np.ndarray,
+        gravity: float,
+        period: float,
+    ) -> None:
         """``x`` and ``lever_arms`` as contiguous float arrays (the backends' hot path converts once)."""
         a_c, b_c, g_c = _model(x, lever_arms, mass, inertia_body_inv, gravity)
         self.a_c = a_c
@@ -148,8 +154,16 @@ class DiscreteModel:
 
 
 @njit(cache=True)
-def _rollout(x0: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray, g: np.ndarray, x_ref: np.ndarray,
-             q: np.ndarray, r: float) -> tuple[np.ndarray, float]:
+def _rollout(
+    x0: np.ndarray,
+    u: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    g: np.ndarray,
+    x_ref: np.ndarray,
+    q: np.ndarray,
+    r: float,
+) -> tuple[np.ndarray, float]:
     h = u.shape[0]
     xs = np.empty((h + 1, x0.shape[0]))
     xs[0] = x0
@@ -161,9 +175,18 @@ def _rollout(x0: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray, g: np.
     return xs, cost
 
 
-def solution_from_inputs(u: np.ndarray, x: np.ndarray, x_ref: np.ndarray, model: DiscreteModel,
-                         weights: tuple[np.ndarray, float], status: str, iterations: int, solve_time_s: float,
-                         started: float, time_limit_s: float = 0.0) -> MpcSolution:
+def solution_from_inputs(
+    u: np.ndarray,
+    x: np.ndarray,
+    x_ref: np.ndarray,
+    model: DiscreteModel,
+    weights: tuple[np.ndarray, float],
+    status: str,
+    iterations: int,
+    solve_time_s: float,
+    started: float,
+    time_limit_s: float = 0.0,
+) -> MpcSolution:
     """A successful solution from the planned inputs ``u`` (H, 12); ``started`` is the solve's perf_counter().
 
     The predicted states are rolled out through the model, so they satisfy the
@@ -177,8 +200,16 @@ def solution_from_inputs(u: np.ndarray, x: np.ndarray, x_ref: np.ndarray, model:
     return solution_from_rollout(u, xs, cost, status, iterations, solve_time_s, started, time_limit_s)
 
 
-def solution_from_rollout(u: np.ndarray, xs: np.ndarray, cost: float, status: str, iterations: int,
-                          solve_time_s: float, started: float, time_limit_s: float = 0.0) -> MpcSolution:
+def solution_from_rollout(
+    u: np.ndarray,
+    xs: np.ndarray,
+    cost: float,
+    status: str,
+    iterations: int,
+    solve_time_s: float,
+    started: float,
+    time_limit_s: float = 0.0,
+) -> MpcSolution:
     """A solution from inputs, predicted states and objective already computed.
 
     ``time_limit_s`` > 0 is the deadline of the whole update: a plan that arrives
@@ -187,20 +218,35 @@ def solution_from_rollout(u: np.ndarray, xs: np.ndarray, cost: float, status: st
     wall_time_s = time.perf_counter() - started
     if 0.0 < time_limit_s < wall_time_s:
         return failed_solution(u.shape[0], "time_limit", iterations, solve_time_s, started)
-    return MpcSolution(forces=u[0].reshape(4, 3).copy(), plan_fz=u[:, 2::3].copy(), predicted=xs, status=status,
-                       success=True, iterations=int(iterations), solve_time_s=float(solve_time_s),
-                       wall_time_s=float(wall_time_s), objective=float(cost), inputs=u)
+    return MpcSolution(
+        forces=u[0].reshape(4, 3).copy(),
+        plan_fz=u[:, 2::3].copy(),
+        predicted=xs,
+        status=status,
+        success=True,
+        iterations=int(iterations),
+        solve_time_s=float(solve_time_s),
+        wall_time_s=float(wall_time_s),
+        objective=float(cost),
+        inputs=u,
+    )
 
 
-def failed_solution(horizon: int, status: str, iterations: int, solve_time_s: float,
-                    started: float) -> MpcSolution:
+def failed_solution(horizon: int, status: str, iterations: int, solve_time_s: float, started: float) -> MpcSolution:
     """A solve that produced no usable plan: the controller applies the last feasible input."""
     wall_time_s = time.perf_counter() - started
     nan = np.full
-    return MpcSolution(forces=nan((4, 3), np.nan), plan_fz=nan((horizon, 4), np.nan),
-                       predicted=nan((horizon + 1, N_STATE), np.nan), status=status, success=False,
-                       iterations=int(iterations), solve_time_s=float(solve_time_s), wall_time_s=float(wall_time_s),
-                       objective=float("nan"))
+    return MpcSolution(
+        forces=nan((4, 3), np.nan),
+        plan_fz=nan((horizon, 4), np.nan),
+        predicted=nan((horizon + 1, N_STATE), np.nan),
+        status=status,
+        success=False,
+        iterations=int(iterations),
+        solve_time_s=float(solve_time_s),
+        wall_time_s=float(wall_time_s),
+        objective=float("nan"),
+    )
 
 
 def remaining(started: float, time_limit_s: float) -> float:
@@ -213,14 +259,6 @@ def remaining(started: float, time_limit_s: float) -> float:
 def objective_weights(cfg: MpcConfig) -> tuple[np.ndarray, float]:
     """(q_diag, r_weight) of the reported objective, unscaled."""
     return np.asarray(cfg.q_diag, dtype=float), float(cfg.r_weight)
-
-
-def make_mpc(cfg_mpc: MpcConfig, cfg_solver: SolverConfig, mass: float, inertia_body: np.ndarray,
-             gravity: float) -> Mpc:
-    """The backend ``cfg_solver.name`` selects, built once for this robot and horizon."""
-    from .backends import backend_class
-
-    return backend_class(cfg_solver.name)(cfg_mpc, cfg_solver, mass, inertia_body, gravity)
 
 
 def constraint_violations(forces: np.ndarray, plan: ContactPlan, weight: float, band: float) -> dict[str, float]:

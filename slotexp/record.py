@@ -33,6 +33,8 @@ from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from .errors import LogReadError
+
 __all__ = [
     "LogReadError",
     "Log",
@@ -51,10 +53,6 @@ _NS_PER_S = 1_000_000_000
 _MESSAGE_ENCODING = "json"
 _SCHEMA_ENCODING = "jsonschema"
 _RESERVED_FIELD = "t"  # the DataFrame's log-time column
-
-
-class LogReadError(ValueError):
-    """Raised when a path cannot be read as an MCAP log at all."""
 
 
 # --------------------------------------------------------------------------- encoding
@@ -247,12 +245,8 @@ class Recorder:
     def _channel(self, topic: str, schema_name: str, schema: Mapping[str, Any]) -> _Chan:
         chan = self._channels.get(topic)
         if chan is None:
-            schema_id = self._writer.register_schema(
-                name=schema_name, encoding=_SCHEMA_ENCODING, data=_dumps(schema)
-            )
-            cid = self._writer.register_channel(
-                topic=topic, message_encoding=_MESSAGE_ENCODING, schema_id=schema_id
-            )
+            schema_id = self._writer.register_schema(name=schema_name, encoding=_SCHEMA_ENCODING, data=_dumps(schema))
+            cid = self._writer.register_channel(topic=topic, message_encoding=_MESSAGE_ENCODING, schema_id=schema_id)
             chan = self._channels[topic] = _Chan(cid)
         return chan
 
@@ -284,9 +278,7 @@ class Recorder:
         if not isinstance(message, Mapping):
             raise TypeError(f"message must be a mapping, got {type(message).__name__}")
         if _RESERVED_FIELD in message:
-            raise ValueError(
-                f"message field {_RESERVED_FIELD!r} on {topic} is reserved for the log time column"
-            )
+            raise ValueError(f"message field {_RESERVED_FIELD!r} on {topic} is reserved for the log time column")
         log_time = _time_ns(t)
         payload = _to_json(message, topic)
         chan = self._channels.get(topic)
@@ -346,11 +338,7 @@ class Recorder:
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         """Write an MCAP Metadata record (written immediately, so it survives a crash)."""
         self._check_open()
-        bad = {
-            k: type(v).__name__
-            for k, v in data.items()
-            if not isinstance(k, str) or not isinstance(v, str)
-        }
+        bad = {k: type(v).__name__ for k, v in data.items() if not isinstance(k, str) or not isinstance(v, str)}
         if bad:
             raise TypeError(f"metadata {name!r}: keys and values must be str, got {bad}")
         self._writer.add_metadata(name, dict(data))
@@ -415,9 +403,7 @@ class Log:
         try:
             return self.topics[topic]
         except KeyError:
-            raise KeyError(
-                f"topic {topic!r} not in log; available topics: {sorted(self.topics)}"
-            ) from None
+            raise KeyError(f"topic {topic!r} not in log; available topics: {sorted(self.topics)}") from None
 
     def __contains__(self, topic: object) -> bool:
         return topic in self.topics
@@ -569,15 +555,11 @@ def read_log(path: str | Path) -> Log:
     per_topic: dict[str, list[tuple[int, dict[str, Any]]]] = {}
     for topic, encoding, log_time, data in raw:
         if encoding != _MESSAGE_ENCODING:
-            raise LogReadError(
-                f"{p}: topic {topic} uses message encoding {encoding!r}, only json is supported"
-            )
+            raise LogReadError(f"{p}: topic {topic} uses message encoding {encoding!r}, only json is supported")
         try:
             msg = json.loads(data)
         except (ValueError, UnicodeDecodeError) as e:
-            raise LogReadError(
-                f"{p}: undecodable JSON message on {topic} at {log_time} ns ({e})"
-            ) from None
+            raise LogReadError(f"{p}: undecodable JSON message on {topic} at {log_time} ns ({e})") from None
         if not isinstance(msg, dict):
             msg = {"value": msg}
         per_topic.setdefault(topic, []).append((log_time, flatten(msg)))

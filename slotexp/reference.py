@@ -16,8 +16,33 @@ from .config import GaitConfig
 from .metrics import wrap_angle
 
 
-def reference(x: np.ndarray, t: float, gait: GaitConfig, period: float, n: int, start: int = 1) -> np.ndarray:
-    """States (n, 12) at times t + k * period for k = start .. start + n - 1."""
+def desired_path(origin: np.ndarray, gait: GaitConfig, t: np.ndarray) -> np.ndarray:
+    """Points (len(t), 2) of the path the gait asks for: the body-frame velocity turned by the
+    desired heading (yaw_rate t), integrated in closed form from ``origin`` at t = 0."""
+    t = np.asarray(t, dtype=float)
+    v = np.asarray(gait.velocity, dtype=float)
+    w = gait.yaw_rate
+    if abs(w) < 1e-12:
+        return origin + t[:, None] * v[None, :]
+    s, c = np.sin(w * t), 1.0 - np.cos(w * t)  # integral of rot_z(w tau) v over [0, t], times w
+    return origin + np.column_stack([v[0] * s - v[1] * c, v[0] * c + v[1] * s]) / w
+
+
+def reference(
+    x: np.ndarray,
+    t: float,
+    gait: GaitConfig,
+    period: float,
+    n: int,
+    start: int = 1,
+    path_origin: np.ndarray | None = None,
+) -> np.ndarray:
+    """States (n, 12) at times t + k * period for k = start .. start + n - 1.
+
+    With ``path_origin`` the reference positions lie on the desired path from that
+    origin (:func:`desired_path`), so a controller that weighs position returns to
+    the path after a push; without it they start at the measured position.
+    """
     k = np.arange(start, start + n, dtype=float)
     tk = t + k * period
     yaw_des = gait.yaw_rate * tk
@@ -27,7 +52,10 @@ def reference(x: np.ndarray, t: float, gait: GaitConfig, period: float, n: int, 
     v_body = np.array([gait.velocity[0], gait.velocity[1], 0.0])
     v_world = np.stack([rot_z(y) @ v_body for y in yaw_des])
     out[:, 9:12] = v_world
-    out[:, 3:5] = x[3:5] + (k * period)[:, None] * v_world[:, 0:2]
+    if path_origin is None:
+        out[:, 3:5] = x[3:5] + (k * period)[:, None] * v_world[:, 0:2]
+    else:
+        out[:, 3:5] = desired_path(np.asarray(path_origin, dtype=float), gait, tk)
     out[:, 5] = gait.height
     out[:, 8] = gait.yaw_rate
     return out

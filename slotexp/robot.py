@@ -16,11 +16,11 @@ from .config import RobotConfig
 @dataclass(frozen=True)
 class RobotModel:
     names: tuple[str, ...]
-    mass: float                 # kg, torso + legs
-    inertia_body: np.ndarray    # (3, 3) kg m^2 about the CoM, body frame
-    corners_body: np.ndarray    # (4, 3) leg roots relative to the torso centre
-    feet_body: np.ndarray       # (4, 3) nominal feet (leg tips on flat ground) relative to the torso centre
-    stance_height: float        # m, torso centre above flat ground with the legs at rest
+    mass: float  # kg, torso + legs
+    inertia_body: np.ndarray  # (3, 3) kg m^2 about the CoM, body frame
+    corners_body: np.ndarray  # (4, 3) leg roots relative to the torso centre
+    feet_body: np.ndarray  # (4, 3) nominal feet (leg tips on flat ground) relative to the torso centre
+    stance_height: float  # m, torso centre above flat ground with the legs at rest
 
 
 def rest_shape_points(coeffs: list[float], length: float, n: int = 400) -> np.ndarray:
@@ -42,8 +42,7 @@ def build_robot(cfg: RobotConfig) -> RobotModel:
     lx, ly, lz = cfg.torso.size
     yaw = np.deg2rad(np.asarray(cfg.leg.yaw_deg, dtype=float))
     # Each leg sits on the torso's bottom face at the corner its yaw points out of.
-    corners = np.column_stack([np.sign(np.cos(yaw)) * lx / 2, np.sign(np.sin(yaw)) * ly / 2,
-                               np.full(4, -lz / 2)])
+    corners = np.column_stack([np.sign(np.cos(yaw)) * lx / 2, np.sign(np.sin(yaw)) * ly / 2, np.full(4, -lz / 2)])
     shape = rest_shape_points(cfg.leg.rest_shape_coeffs, cfg.leg.length)
     reach = shape[-1, 0] - shape[0, 0]
     drop = shape[0, 1] - shape[-1, 1]  # root height above the tip

@@ -17,19 +17,19 @@ STATE_FIELDS = ("rpy", "p", "omega", "v")
 @dataclass
 class RunData:
     path: Path
-    run: dict[str, str]          # metadata "run": experiment, scenario, gait, solver, plant, commit
-    summary: dict[str, str]      # metadata "summary" (absent if the run was interrupted)
+    run: dict[str, str]  # metadata "run": experiment, scenario, gait, solver, plant, commit
+    summary: dict[str, str]  # metadata "summary" (absent if the run was interrupted)
     truncated: bool
     t: np.ndarray
-    x: np.ndarray                # (n, 12) true state
-    x_meas: np.ndarray           # (n, 12) state the MPC saw
-    x_ref: np.ndarray            # (n, 12) reference at the same time
-    cost: np.ndarray             # (n,) stage cost
-    stats: pd.DataFrame          # status, success, fallback, iterations, solve_time_s, ...
-    violations: pd.DataFrame     # one column per constraint group, N
-    stance: np.ndarray           # (n, 4) bool
-    forces: np.ndarray           # (n, 4, 3) applied
-    markers: pd.DataFrame        # t plus <marker>.0/.1/.2
+    x: np.ndarray  # (n, 12) true state
+    x_meas: np.ndarray  # (n, 12) state the MPC saw
+    x_ref: np.ndarray  # (n, 12) reference at the same time
+    cost: np.ndarray  # (n,) stage cost
+    stats: pd.DataFrame  # status, success, fallback, iterations, solve_time_s, ...
+    violations: pd.DataFrame  # one column per constraint group, N
+    stance: np.ndarray  # (n, 4) bool
+    forces: np.ndarray  # (n, 4, 3) applied
+    markers: pd.DataFrame  # t plus <marker>.0/.1/.2
 
     @property
     def name(self) -> str:
@@ -48,9 +48,20 @@ def _states(df: pd.DataFrame, n: int) -> np.ndarray:
 def load_run(path: str | Path) -> RunData:
     path = Path(path)
     log: Log = read_log(path)
-    n = min(len(log.topics.get(topic, [])) for topic in
-            ("/state", "/state_measured", "/reference", "/cost", "/mpc/stats", "/constraints", "/contact",
-             "/forces", "/markers"))
+    n = min(
+        len(log.topics.get(topic, []))
+        for topic in (
+            "/state",
+            "/state_measured",
+            "/reference",
+            "/cost",
+            "/mpc/stats",
+            "/constraints",
+            "/contact",
+            "/forces",
+            "/markers",
+        )
+    )
     stats = log["/mpc/stats"].iloc[:n].reset_index(drop=True)
     cons = log["/constraints"].iloc[:n].reset_index(drop=True)
     forces = log["/forces"][[f"applied.{i}.{j}" for i in range(4) for j in range(3)]].to_numpy(float)[:n]

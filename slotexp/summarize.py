@@ -35,8 +35,10 @@ def find_jobs(multirun_dir: Path) -> list[Path]:
         raise UserError(f"{multirun_dir}: not a directory: give a multirun directory (experiments/multirun/<time>)")
     jobs = [p for p in multirun_dir.iterdir() if p.is_dir() and (p / OVERRIDES).is_file()]
     if not jobs:
-        raise UserError(f"{multirun_dir}: no job directories (<job>/.hydra/overrides.yaml): is this the output "
-                        f"directory of `slot run -m ...`?")
+        raise UserError(
+            f"{multirun_dir}: no job directories (<job>/.hydra/overrides.yaml): is this the output "
+            f"directory of `slot run -m ...`?"
+        )
 
     def number(p: Path) -> tuple[int, str]:
         head = p.name.split("_", 1)[0]
@@ -73,10 +75,14 @@ def _metrics(job: Path) -> dict[str, float]:
     if table.is_file():
         t = pd.read_csv(table)
         settle = pd.to_numeric(t["settle_s"], errors="coerce")
-        return {"scenarios": len(t), "max_cost": float(t["max_cost"].max()),
-                "mean_cost": float(t["mean_cost"].mean()), "final_cost_max": float(t["final_cost"].max()),
-                "settle_s_max": float(settle.max()) if settle.notna().any() else math.nan,
-                "unsettled": int(settle.isna().sum())}
+        return {
+            "scenarios": len(t),
+            "max_cost": float(t["max_cost"].max()),
+            "mean_cost": float(t["mean_cost"].mean()),
+            "final_cost_max": float(t["final_cost"].max()),
+            "settle_s_max": float(settle.max()) if settle.notna().any() else math.nan,
+            "unsettled": int(settle.isna().sum()),
+        }
     path = job / "metrics.json"
     if path.is_file():
         data = json.loads(path.read_text())
@@ -104,9 +110,14 @@ def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
     w = np.concatenate(walls) * 1e3 if walls else np.zeros(0)
     if not w.size:
         return {"steps": steps, "infeasible_steps": infeasible, "infeasible_deterministic": infeasible_det}
-    return {"steps": steps, "update_median_ms": float(np.median(w)), "update_p99_ms": float(np.percentile(w, 99)),
-            "update_max_ms": float(w.max()), "infeasible_steps": infeasible,
-            "infeasible_deterministic": infeasible_det}
+    return {
+        "steps": steps,
+        "update_median_ms": float(np.median(w)),
+        "update_p99_ms": float(np.percentile(w, 99)),
+        "update_max_ms": float(w.max()),
+        "infeasible_steps": infeasible,
+        "infeasible_deterministic": infeasible_det,
+    }
 
 
 def summarize(multirun_dir: Path) -> pd.DataFrame:
@@ -129,7 +140,8 @@ def summarize(multirun_dir: Path) -> pd.DataFrame:
     (multirun_dir / "summary.md").write_text(
         f"Sweep `{multirun_dir}`: {len(jobs)} jobs. Update time = /mpc/stats wall_time_s (build or update + solve) "
         f"over every logged MPC step but each log's first (one-off setup); infeasible = fallback steps "
-        f"(deterministic: in scenarios without noise).\n\n" + to_markdown(table) + "\n")
+        f"(deterministic: in scenarios without noise).\n\n" + to_markdown(table) + "\n"
+    )
     _plot(table, multirun_dir / "summary.png")
     return table
 
@@ -146,9 +158,11 @@ def _plot(table: pd.DataFrame, path: Path) -> None:
     """Update time (median and p99) and infeasible steps per job."""
     fig = new_figure(max(6.0, 1.1 * len(table) + 2.0), 5.5)
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
-    labels = [f"{r['solver']}" + "".join(f"\n{c}={r[c]}" for c in table.columns
-                                         if c not in _FIXED and isinstance(r[c], str) and r[c])
-              for _, r in table.iterrows()]
+    labels = [
+        f"{r['solver']}"
+        + "".join(f"\n{c}={r[c]}" for c in table.columns if c not in _FIXED and isinstance(r[c], str) and r[c])
+        for _, r in table.iterrows()
+    ]
     x = np.arange(len(table))
     for col, offset, name in (("update_median_ms", -0.2, "median"), ("update_p99_ms", 0.2, "p99")):
         if col in table:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import pandas as pd
 
@@ -17,14 +17,16 @@ def table1(runs: Sequence[RunData], settle_fraction: float, settle_hold_s: float
     """Paper Table I: cost statistics, settle time and infeasible (fallback) steps per scenario."""
     rows = []
     for run in runs:
-        rows.append({
-            "scenario": run.name,
-            "max_cost": float(run.cost.max()),
-            "mean_cost": float(run.cost.mean()),
-            "final_cost": float(run.cost[-1]),
-            "settle_s": settle_time(run.t, run.cost, settle_fraction, settle_hold_s),
-            "infeasible_steps": run.infeasible_steps,
-        })
+        rows.append(
+            {
+                "scenario": run.name,
+                "max_cost": float(run.cost.max()),
+                "mean_cost": float(run.cost.mean()),
+                "final_cost": float(run.cost[-1]),
+                "settle_s": settle_time(run.t, run.cost, settle_fraction, settle_hold_s),
+                "infeasible_steps": run.infeasible_steps,
+            }
+        )
     return pd.DataFrame(rows, columns=TABLE1_COLUMNS)
 
 

@@ -14,15 +14,15 @@ from functools import cache
 import numpy as np
 import pytest
 
-from slotexp.backends import BACKENDS, backend_class
-from slotexp.controller import Controller
+from slotexp.backends import BACKENDS, backend_class, make_mpc
+from slotexp.controllers.paper import PaperController as Controller
 from slotexp.gait import GaitMatrix, contact_plan
-from slotexp.mpc import make_mpc, plan_violations
-from slotexp.plant import IdealPlant, nominal_state
+from slotexp.mpc import plan_violations
+from slotexp.plants import ForceCommand, nominal_state
+from slotexp.plants.ideal import IdealPlant
 from slotexp.reference import reference
 from slotexp.robot import build_robot
-from tests.helpers import load
-from tests.test_mpc import _check_constraints
+from tests.helpers import check_plan_constraints, load
 
 # Objective agreement with the reference, relative (plus 1e-9 absolute). The active-set
 # and interior-point solutions are exact; OSQP and SCS stop at eps = 1e-5 (OSQP's
@@ -51,8 +51,9 @@ def _random_problems(gait: str, n: int, seed: int, *extra: str) -> tuple[tuple[s
     gait_m = GaitMatrix(cfg.gait.phases)
     out = []
     for _ in range(n):
-        x = nominal_state(robot) + np.concatenate([rng.normal(0, 0.05, 3), [0, 0, rng.normal(0, 0.005)],
-                                                   rng.normal(0, 0.1, 3), rng.normal(0, 0.05, 3)])
+        x = nominal_state(robot) + np.concatenate(
+            [rng.normal(0, 0.05, 3), [0, 0, rng.normal(0, 0.005)], rng.normal(0, 0.1, 3), rng.normal(0, 0.05, 3)]
+        )
         for _ in range(rng.integers(1, 12)):
             gait_m.roll()
         plan = contact_plan(gait_m.contacts(cfg.mpc.horizon), cfg.gait, cfg.mpc.f_min_stance, cfg.mpc.f_max)
@@ -67,8 +68,9 @@ def _closed_loop(steps: int, push_at: int, *extra: str) -> tuple[tuple[str, ...]
     cfg = _cfg(*REFERENCE, *overrides)
     robot = build_robot(cfg.robot)
     scenario = cfg.scenarios["combined"]
-    plant = IdealPlant(robot, nominal_state(robot) + np.asarray(scenario.offset.as_array()), cfg.sim.gravity,
-                       cfg.sim.dt)
+    plant = IdealPlant(
+        robot, nominal_state(robot) + np.asarray(scenario.offset.as_array()), cfg.sim.gravity, cfg.sim.dt
+    )
     ctrl = Controller(cfg, robot)
     out = []
     for k in range(steps):
@@ -77,7 +79,7 @@ def _closed_loop(steps: int, push_at: int, *extra: str) -> tuple[tuple[str, ...]
         out.append((x, step.x_ref, feet - x[3:6], step.plan))
         if k == push_at:
             plant.apply_impulse(np.array([-0.1, 0.05, 0.0]), np.array([0.0, 0.002, 0.0]))
-        plant.step(step.forces, ctrl.period)
+        plant.step(ForceCommand(step.forces), ctrl.period)
     return overrides, out
 
 
@@ -108,9 +110,11 @@ def _solve_all(problems: list, *overrides: str, stride: int = 1) -> list:
     return [mpc.solve(*p) if i % stride == 0 else None for i, p in enumerate(problems)]
 
 
-@pytest.mark.parametrize("sequence", ["walk_random", "crawl_random", "omni_random", "strict_balance",
-                                      "lifted_swing", "lifted_crawl", "closed_loop"])
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize(
+    "sequence",
+    ["walk_random", "crawl_random", "omni_random", "strict_balance", "lifted_swing", "lifted_crawl", "closed_loop"],
+)
+@pytest.mark.parametrize("backend", BACKENDS.names())
 def test_backend_matches_reference_and_satisfies_constraints(backend: str, sequence: str) -> None:
     overrides, problems = _sequences()[sequence]
     reference_solutions = _reference(sequence)
@@ -129,16 +133,20 @@ def test_backend_matches_reference_and_satisfies_constraints(backend: str, seque
         worst = plan_violations(sol.inputs, plan, weight, cfg.mpc.force_balance_band)
         assert max(worst.values()) <= VIOLATION_TOL[backend], (backend, sequence, i, worst)
         if VIOLATION_TOL[backend] <= 1e-4:  # test_mpc's checks use 0.1 mN; first-order solvers meet their eps
-            _check_constraints(cfg, robot, sol, x, plan)
+            check_plan_constraints(cfg, robot, sol, x, plan)
         if backend == "daqp" and not cfg.gait.swing_contact:  # removed variables are exactly zero
             assert np.all(sol.inputs.reshape(-1, 4, 3)[~plan.stance] == 0.0)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKENDS.names())
 def test_infeasible_problem_is_reported_by_every_backend(backend: str) -> None:
     # Three legs cannot carry m g at f_z <= 6 N under the strict balance.
-    overrides = (f"solver={backend}", "gait.swing_contact=false", "mpc.force_balance_band=0",
-                 "gait.phases=[[1,1,1,1,1],[29,0,1,1,1]]")
+    overrides = (
+        f"solver={backend}",
+        "gait.swing_contact=false",
+        "mpc.force_balance_band=0",
+        "gait.phases=[[1,1,1,1,1],[29,0,1,1,1]]",
+    )
     cfg = _cfg(*overrides)
     robot = build_robot(cfg.robot)
     ctrl = Controller(cfg, robot)
@@ -148,7 +156,7 @@ def test_infeasible_problem_is_reported_by_every_backend(backend: str) -> None:
     np.testing.assert_allclose(first.forces, np.tile([0, 0, robot.mass * cfg.sim.gravity / 4], (4, 1)))
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKENDS.names())
 def test_a_missed_deadline_is_a_failed_solve(backend: str) -> None:
     _, problems = _sequences()["walk_random"]
     cfg = _cfg(f"solver={backend}", "solver.time_limit_s=1e-6")
@@ -181,7 +189,7 @@ def test_cold_start_gives_the_same_solution(backend: str) -> None:
 
 
 def test_every_backend_is_selectable_and_unknown_names_fail() -> None:
-    for name in BACKENDS:
+    for name in BACKENDS.names():
         cfg = _cfg(f"solver={name}")
         assert cfg.solver.name == name
         assert backend_class(name).__name__.endswith("Mpc")

@@ -3,7 +3,8 @@
 import numpy as np
 
 from slotexp.body import quat_to_rot
-from slotexp.plant import IdealPlant, nominal_state
+from slotexp.plants import ForceCommand, nominal_state
+from slotexp.plants.ideal import IdealPlant
 from slotexp.robot import build_robot
 from tests.helpers import load
 
@@ -26,7 +27,7 @@ def test_free_rotation_conserves_energy_and_angular_momentum():
 
     e0, l0 = invariants()
     for _ in range(30):
-        plant.step(np.zeros((4, 3)), 1 / 30)
+        plant.step(ForceCommand(np.zeros((4, 3))), 1 / 30)
     e1, l1 = invariants()
     assert abs(e1 - e0) / e0 < 1e-6
     np.testing.assert_allclose(l1, l0, rtol=1e-6)
@@ -37,7 +38,7 @@ def test_ballistic_flight_is_exact():
     x0 = nominal_state(robot)
     x0[9:12] = [0.3, -0.2, 1.0]
     plant = IdealPlant(robot, x0, gravity=9.81, dt=1e-3)
-    plant.step(np.zeros((4, 3)), 0.5)
+    plant.step(ForceCommand(np.zeros((4, 3))), 0.5)
     t = 0.5
     expected = x0[3:6] + x0[9:12] * t + np.array([0, 0, -0.5 * 9.81 * t**2])
     np.testing.assert_allclose(plant.state()[3:6], expected, atol=1e-12)
@@ -55,7 +56,7 @@ def test_static_stance_forces_hold_the_torso():
     # The CoM is above the force points, so this is an unstable (inverted-pendulum)
     # equilibrium: round-off grows like exp(11 t). Over 0.2 s it must stay at round-off.
     for _ in range(6):
-        plant.step(forces, 1 / 30)
+        plant.step(ForceCommand(forces), 1 / 30)
     np.testing.assert_allclose(plant.state(), x0, atol=1e-12)
 
 
@@ -74,7 +75,13 @@ def test_robot_geometry_matches_paper():
     # torso centre ~0.04 m up (paper p_z* = 0.04): root on the bottom face, 21.75 mm above the tip
     assert 0.035 < robot.stance_height < 0.042
     # feet point out of the corners at the configured yaw
-    yaw = np.degrees(np.arctan2(robot.feet_body[:, 1] - robot.corners_body[:, 1],
-                                robot.feet_body[:, 0] - robot.corners_body[:, 0])) % 360
+    yaw = (
+        np.degrees(
+            np.arctan2(
+                robot.feet_body[:, 1] - robot.corners_body[:, 1], robot.feet_body[:, 0] - robot.corners_body[:, 0]
+            )
+        )
+        % 360
+    )
     np.testing.assert_allclose(yaw, [45, 135, 225, 315], atol=1e-9)
     assert np.all(np.linalg.eigvalsh(robot.inertia_body) > 0)

@@ -13,7 +13,6 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -23,49 +22,12 @@ import pytest
 import yaml
 
 from slotexp.record import read_log
-
-SLOT = Path(sys.executable).parent / "slot"
-SLOT_CMD = [str(SLOT)] if SLOT.exists() else [sys.executable, "-m", "slotexp.cli"]
+from tests.helpers import SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot
 
 TABLE1_HEADER = ["scenario", "max_cost", "mean_cost", "final_cost", "settle_s", "infeasible_steps"]
 PERTURB_SCENARIOS = ["baseline", "height"]
 PERTURB_HORIZON = 12  # not the default (15): proves the logged config is the resolved one
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
-
-
-def slot(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([*SLOT_CMD, *map(str, args)], cwd=cwd, env=dict(os.environ), capture_output=True,
-                          text=True, timeout=timeout)
-
-
-def last_line(text: str) -> str:
-    lines = [ln for ln in text.splitlines() if ln.strip()]
-    assert lines, "nothing on stdout"
-    return lines[-1].strip()
-
-
-def ok(proc: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
-    assert proc.returncode == 0, f"exit {proc.returncode}\nstdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
-    assert "Traceback" not in proc.stderr, proc.stderr
-    return proc
-
-
-def assert_one_line_error(proc: subprocess.CompletedProcess, *names: str) -> str:
-    assert proc.returncode == 2, f"exit {proc.returncode}\nstdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
-    assert "Traceback" not in proc.stderr and "Traceback" not in proc.stdout, proc.stderr
-    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, f"expected exactly one line on stderr, got:\n{proc.stderr}"
-    line = lines[0]
-    assert line.startswith("error: ") and len(line) > len("error: "), line
-    for name in names:
-        assert name in line, f"{name!r} not named in: {line}"
-    return line
-
-
-def assert_png(path: Path) -> None:
-    assert path.is_file(), f"{path} missing"
-    data = path.read_bytes()
-    assert len(data) > 1000 and data[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a real PNG"
 
 
 def plain(text: str) -> str:
@@ -83,9 +45,16 @@ def perturb_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, subproc
     """A 1 s, 2-scenario perturb run through the parallel (n_jobs=2) path."""
     base = tmp_path_factory.mktemp("perturb")
     run_dir = base / "run"
-    proc = slot("run", "experiment=perturb", f"experiment.scenarios=[{','.join(PERTURB_SCENARIOS)}]",
-                "experiment.duration=1.0", "experiment.n_jobs=2", f"mpc.horizon={PERTURB_HORIZON}",
-                f"hydra.run.dir={run_dir}", cwd=base)
+    proc = slot(
+        "run",
+        "experiment=perturb",
+        f"experiment.scenarios=[{','.join(PERTURB_SCENARIOS)}]",
+        "experiment.duration=1.0",
+        "experiment.n_jobs=2",
+        f"mpc.horizon={PERTURB_HORIZON}",
+        f"hydra.run.dir={run_dir}",
+        cwd=base,
+    )
     return run_dir, proc
 
 
@@ -199,16 +168,29 @@ def test_bad_override_is_one_line_error(tmp_path: Path, overrides: list[str], na
 
 
 def test_validate_missing_reference_path_is_one_line_error(tmp_path: Path) -> None:
-    proc = slot("run", "experiment=validate", "experiment.reference=/does/not/exist",
-                f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path, timeout=60)
+    proc = slot(
+        "run",
+        "experiment=validate",
+        "experiment.reference=/does/not/exist",
+        f"hydra.run.dir={tmp_path / 'run'}",
+        cwd=tmp_path,
+        timeout=60,
+    )
     assert_one_line_error(proc, "/does/not/exist")
 
 
 def test_validate_garbage_reference_csv_is_one_line_error(tmp_path: Path) -> None:
     ref = tmp_path / "garbage.csv"
     ref.write_text(GARBAGE_CSV)
-    proc = slot("run", "experiment=validate", f"experiment.reference={ref}", "experiment.duration=0.5",
-                f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path, timeout=60)
+    proc = slot(
+        "run",
+        "experiment=validate",
+        f"experiment.reference={ref}",
+        "experiment.duration=0.5",
+        f"hydra.run.dir={tmp_path / 'run'}",
+        cwd=tmp_path,
+        timeout=60,
+    )
     assert_one_line_error(proc, "garbage.csv")
 
 
@@ -219,8 +201,16 @@ def test_figures_on_missing_dir_is_one_line_error(tmp_path: Path) -> None:
 
 def test_multirun_with_one_bad_value_fails_before_launching(tmp_path: Path) -> None:
     sweep_dir = tmp_path / "sweep"
-    proc = slot("run", "-m", "experiment=simulate", "experiment.duration=0.5", "mpc.horizon=15,0",
-                f"hydra.sweep.dir={sweep_dir}", cwd=tmp_path, timeout=60)
+    proc = slot(
+        "run",
+        "-m",
+        "experiment=simulate",
+        "experiment.duration=0.5",
+        "mpc.horizon=15,0",
+        f"hydra.sweep.dir={sweep_dir}",
+        cwd=tmp_path,
+        timeout=60,
+    )
     assert_one_line_error(proc, "mpc.horizon")
     assert not sweep_dir.exists(), "the sweep launched before the bad value was rejected"
     assert not (tmp_path / "experiments").exists()
@@ -258,10 +248,22 @@ def test_ctrl_c_exits_130_and_leaves_a_closed_log(tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
     log_path = run_dir / "logs" / "baseline.mcap"
     proc = subprocess.Popen(
-        [*SLOT_CMD, "run", "experiment=perturb", "experiment.scenarios=[baseline]", "experiment.duration=25",
-         "experiment.n_jobs=1", f"hydra.run.dir={run_dir}"],
-        cwd=tmp_path, env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        start_new_session=True)
+        [
+            *SLOT_CMD,
+            "run",
+            "experiment=perturb",
+            "experiment.scenarios=[baseline]",
+            "experiment.duration=25",
+            "experiment.n_jobs=1",
+            f"hydra.run.dir={run_dir}",
+        ],
+        cwd=tmp_path,
+        env=dict(os.environ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and proc.poll() is None:
@@ -299,8 +301,16 @@ def _rows(run_dir: Path) -> pd.DataFrame:
 
 def test_validate_run_against_itself_is_zero(simulate_run: Path, tmp_path: Path) -> None:
     out_dir = tmp_path / "V"
-    proc = ok(slot("run", "experiment=validate", f"experiment.reference={simulate_run}",
-                   f"experiment.candidate={simulate_run}", f"hydra.run.dir={out_dir}", cwd=tmp_path))
+    proc = ok(
+        slot(
+            "run",
+            "experiment=validate",
+            f"experiment.reference={simulate_run}",
+            f"experiment.candidate={simulate_run}",
+            f"hydra.run.dir={out_dir}",
+            cwd=tmp_path,
+        )
+    )
     assert last_line(proc.stdout) == str(out_dir)
     table = pd.read_csv(out_dir / "validate.csv")
     assert list(table.columns) == ["marker", "axis", "rmse_m", "mae_m", "nrmse", "n_samples"]
@@ -325,8 +335,16 @@ def test_validate_marker_csv_with_known_z_offset(simulate_run: Path, tmp_path: P
     ref.write_text("\n".join(lines) + "\n")
 
     out_dir = tmp_path / "V"
-    proc = ok(slot("run", "experiment=validate", f"experiment.reference={ref}",
-                   f"experiment.candidate={simulate_run}", f"hydra.run.dir={out_dir}", cwd=tmp_path))
+    proc = ok(
+        slot(
+            "run",
+            "experiment=validate",
+            f"experiment.reference={ref}",
+            f"experiment.candidate={simulate_run}",
+            f"hydra.run.dir={out_dir}",
+            cwd=tmp_path,
+        )
+    )
     assert last_line(proc.stdout) == str(out_dir)
     for table in (pd.read_csv(out_dir / "validate.csv"), _rows(out_dir)):
         assert list(table["marker"]) == ["com"] * 3
@@ -340,8 +358,16 @@ def test_validate_marker_csv_with_known_z_offset(simulate_run: Path, tmp_path: P
 
 def test_figures_rebuilds_validate_run_with_candidate(simulate_run: Path, tmp_path: Path) -> None:
     out_dir = tmp_path / "V"
-    ok(slot("run", "experiment=validate", f"experiment.reference={simulate_run}",
-            f"experiment.candidate={simulate_run}", f"hydra.run.dir={out_dir}", cwd=tmp_path))
+    ok(
+        slot(
+            "run",
+            "experiment=validate",
+            f"experiment.reference={simulate_run}",
+            f"experiment.candidate={simulate_run}",
+            f"hydra.run.dir={out_dir}",
+            cwd=tmp_path,
+        )
+    )
     original = (out_dir / "validate.csv").read_text()
     (out_dir / "validate.csv").unlink()
     ok(slot("figures", out_dir, cwd=tmp_path, timeout=60))
@@ -353,8 +379,17 @@ def test_figures_rebuilds_validate_run_with_candidate(simulate_run: Path, tmp_pa
 
 def test_multirun_sweeps_solvers_with_joblib(tmp_path: Path) -> None:
     sweep_dir = tmp_path / "sweep"
-    proc = ok(slot("run", "-m", "experiment=simulate", "experiment.duration=0.5", "solver=clarabel,scs",
-                   f"hydra.sweep.dir={sweep_dir}", cwd=tmp_path))
+    proc = ok(
+        slot(
+            "run",
+            "-m",
+            "experiment=simulate",
+            "experiment.duration=0.5",
+            "solver=clarabel,scs",
+            f"hydra.sweep.dir={sweep_dir}",
+            cwd=tmp_path,
+        )
+    )
     jobs = sorted(p for p in sweep_dir.iterdir() if p.is_dir())
     assert [p.name.split("_", 1)[0] for p in jobs] == ["0", "1"]
     printed = {ln.strip() for ln in proc.stdout.splitlines()}

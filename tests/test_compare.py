@@ -262,8 +262,20 @@ _HEADER = "t,com_x,com_y,com_z"
         (f"{_HEADER}\n0,0,0,0\n1,0,0\n", "line 3"),
         ("t,com_x,com_y,com_z,bad-name\n0,0,0,0,0\n1,0,0,0,0\n", "bad-name"),
     ],
-    ids=["empty", "comments-only", "no-t", "missing-axis", "non-numeric", "decreasing-t",
-         "repeated-t", "one-row", "no-rows", "empty-t", "short-row", "bad-column"],
+    ids=[
+        "empty",
+        "comments-only",
+        "no-t",
+        "missing-axis",
+        "non-numeric",
+        "decreasing-t",
+        "repeated-t",
+        "one-row",
+        "no-rows",
+        "empty-t",
+        "short-row",
+        "bad-column",
+    ],
 )
 def test_csv_errors_are_one_line_and_name_the_file(tmp_path: Path, content: str, expected: str) -> None:
     path = tmp_path / "bad_tracks.csv"
@@ -285,12 +297,17 @@ def test_csv_missing_file(tmp_path: Path) -> None:
 
 def test_trajectory_from_frame() -> None:
     t = np.linspace(0.0, 1.0, 4)
-    df = pd.DataFrame({
-        "t": t,
-        "com.0": t, "com.1": 2 * t, "com.2": [0.15, 0.15, np.nan, 0.15],
-        "FL_n30.0": t, "FL_n30.1": t,  # incomplete: ignored
-        "mode": ["stand"] * 4,  # unrelated column: ignored
-    })
+    df = pd.DataFrame(
+        {
+            "t": t,
+            "com.0": t,
+            "com.1": 2 * t,
+            "com.2": [0.15, 0.15, np.nan, 0.15],
+            "FL_n30.0": t,
+            "FL_n30.1": t,  # incomplete: ignored
+            "mode": ["stand"] * 4,  # unrelated column: ignored
+        }
+    )
     traj = trajectory_from_frame(df)
     assert list(traj.markers) == ["com"]
     np.testing.assert_array_equal(traj.t, t)

@@ -3,10 +3,12 @@
 import numpy as np
 import pytest
 
-from slotexp.cosserat import CosseratPlant, DivergenceError
-from slotexp.legsim import P_GROUND
-from slotexp.plant import nominal_state
+from slotexp.errors import DivergenceError
+from slotexp.plants import TendonCommand, nominal_state
+from slotexp.plants.cosserat import CosseratPlant
 from slotexp.robot import build_robot
+from slotexp.soft.params import P_GROUND
+from slotexp.soft.servo import RPM_TO_RAD_S, servo_step
 from tests.helpers import load
 
 
@@ -30,18 +32,19 @@ def test_free_fall_conserves_momentum_through_the_coupling():
     total_mass = plant.torso_mass + 4 * plant.model.mass[1:].sum()
     assert total_mass == pytest.approx(cfg.robot.torso.mass + 4 * plant.model.mass.sum())
     for k in range(6):
-        plant.step(np.zeros((4, 3)), 1 / 30, tendon_deg=np.full(4, 20.0 * k))
+        plant.step(TendonCommand(np.full(4, 20.0 * k)), 1 / 30)
     t = 6 / 30
     assert _vertical_momentum(plant) - momentum0 == pytest.approx(-total_mass * 9.81 * t, rel=1e-6)
 
 
 def test_standing_robot_carries_its_weight_on_its_feet():
-    # The torso bounces on its soft legs at about 1 Hz, lightly damped: average the third second.
+    # The torso bounces on its soft legs at about 1 Hz, lightly damped: average the fourth second
+    # (the servos wind the tendons in at their rated speed first).
     cfg, plant = _plant()
     normals, vz = [], []
-    for k in range(90):  # 3 s with the tendons at a fixed angle
-        plant.step(np.zeros((4, 3)), 1 / 30, tendon_deg=np.full(4, 80.0))
-        if k >= 60:
+    for k in range(120):  # 4 s with the tendons commanded to a fixed angle
+        plant.step(TendonCommand(np.full(4, 80.0)), 1 / 30)
+        if k >= 90:
             normals.append(plant.out[:, 4].copy())
             vz.append(plant.state()[11])
     weight = (cfg.robot.torso.mass + 4 * plant.model.mass.sum()) * 9.81
@@ -57,7 +60,7 @@ def test_tendon_lifts_the_torso():
     for angle in (40.0, 100.0):
         _, plant = _plant()
         for _ in range(45):
-            plant.step(np.zeros((4, 3)), 1 / 30, tendon_deg=np.full(4, angle))
+            plant.step(TendonCommand(np.full(4, angle)), 1 / 30)
         heights.append(plant.state()[5])
     assert heights[1] > heights[0] + 0.002
 
@@ -66,7 +69,7 @@ def test_symplectic_above_its_limit_stops_with_the_limit_named():
     with pytest.raises(DivergenceError) as exc:
         _, plant = _plant("plant.integrator=symplectic", "sim.dt=2e-4")
         for _ in range(30):
-            plant.step(np.zeros((4, 3)), 1 / 30, tendon_deg=np.full(4, 60.0))
+            plant.step(TendonCommand(np.full(4, 60.0)), 1 / 30)
     message = str(exc.value)
     assert "sim.dt = 0.0002" in message and "stability limit" in message and "\n" not in message
 
@@ -81,7 +84,7 @@ def test_a_robot_set_down_below_its_height_starts_without_a_jump():
     x0[0] = 0.05
     low = CosseratPlant(cfg, robot, x0)
     assert np.all(low.leg_world()[:, :, 2] > -2e-3)  # nothing deep in the ground after settling
-    low.step(np.zeros((4, 3)), 1 / 30, tendon_deg=np.full(4, 80.0))
+    low.step(TendonCommand(np.full(4, 80.0)), 1 / 30)
     assert np.linalg.norm(low.state()[9:12]) < 0.1  # no launch
 
 
@@ -92,4 +95,40 @@ def test_markers_follow_the_paper_nodes():
         for node in (0, 10, 20, 30):
             assert f"{leg}_n{node}" in markers
         np.testing.assert_allclose(markers[f"{leg}_n30"], markers[f"{leg}_foot"])
-    np.testing.assert_allclose(plant.feet()[:, 2], 0.0, atol=5e-4)  # set-down feet rest on the ground
+    # set-down legs rest on the ground (the wound tendon curls the tip: the lowest node carries the foot)
+    np.testing.assert_allclose(plant.leg_world()[:, :, 2].min(axis=1), 0.0, atol=5e-4)
+
+
+def test_servo_speed_follows_the_xl430_speed_torque_line() -> None:
+    """No load: 57 rpm (342 deg/s); winding against a load: slower along the line to zero at stall;
+    unwinding: the no-load speed; never above the Profile Velocity; small moves: the 5 ms lag."""
+    w0 = 57.0 * RPM_TO_RAD_S
+    h, tau, stall = 1e-4, 0.005, 1.4
+    for torque in (0.0, 0.35, 0.7, 1.05, 1.4, 2.0):
+        angle, steps = 0.0, 2000  # 0.2 s towards a far command
+        for _ in range(steps):
+            angle = servo_step(angle, 10.0, h, tau, torque, stall, w0, 0.0)
+        assert angle == pytest.approx(w0 * max(0.0, 1 - torque / stall) * steps * h, rel=1e-9, abs=1e-12)
+    back = 2.0
+    for _ in range(1000):
+        back = servo_step(back, -10.0, h, tau, 1.0, stall, w0, 0.0)
+    assert back == pytest.approx(2.0 - w0 * 0.1, rel=1e-9)
+    profile = 40.0 * RPM_TO_RAD_S
+    capped = 0.0
+    for _ in range(1000):
+        capped = servo_step(capped, 10.0, h, tau, 0.0, stall, w0, profile)
+    assert capped == pytest.approx(profile * 0.1, rel=1e-9)
+    small = 0.0
+    for _ in range(50):  # 5 ms: a 0.01 rad step stays inside the speed limit and follows the lag
+        small = servo_step(small, 0.01, h, tau, 0.0, stall, w0, 0.0)
+    assert small == pytest.approx(0.01 * (1 - (1 / (1 + h / tau)) ** 50), rel=1e-12)
+
+
+def test_plant_servo_never_exceeds_342_deg_per_s() -> None:
+    cfg = load("plant=cosserat")
+    robot = build_robot(cfg.robot)
+    plant = CosseratPlant(cfg, robot, nominal_state(robot))
+    before = np.rad2deg(plant.servo.copy())
+    plant.step(TendonCommand(np.full(4, 116.0)), 1 / 30)
+    moved = np.rad2deg(plant.servo) - before
+    assert np.all(moved <= 342.0 / 30 + 1e-9) and np.all(moved > 0.5 * 342.0 / 30)  # loaded: below no-load speed

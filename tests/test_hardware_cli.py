@@ -19,17 +19,28 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from servo_emulator import OdometryPublisher, ServoEmulator
 from slotexp.record import read_log
-from test_cli import SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot
+from tests.helpers import SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, run_on_emulator, slot
+from tests.servo_emulator import OdometryPublisher, ServoEmulator
 
 
 def start(emu: ServoEmulator, pub: OdometryPublisher, run_dir: Path, *extra: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [*SLOT_CMD, "hardware", f"hardware.port={emu.port}", f"odometry.endpoint={pub.endpoint}",
-         f"hydra.run.dir={run_dir}", *extra],
-        cwd=run_dir.parent, env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        start_new_session=True)
+        [
+            *SLOT_CMD,
+            "hardware",
+            f"hardware.port={emu.port}",
+            f"odometry.endpoint={pub.endpoint}",
+            f"hydra.run.dir={run_dir}",
+            *extra,
+        ],
+        cwd=run_dir.parent,
+        env=dict(os.environ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
 
 
 def wait_for_torque(emu: ServoEmulator, proc: subprocess.Popen, timeout: float = 40) -> None:
@@ -91,8 +102,15 @@ def test_a_killed_process_is_stopped_by_the_bus_watchdog(tmp_path: Path) -> None
 def dry_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess, ServoEmulator]:
     run_dir = tmp_path_factory.mktemp("dry") / "run"
     with ServoEmulator() as emu, OdometryPublisher() as pub:
-        proc = slot("hardware", "--dry-run", f"hardware.port={emu.port}", f"odometry.endpoint={pub.endpoint}",
-                    "duration=1", f"hydra.run.dir={run_dir}", cwd=run_dir.parent)
+        proc = slot(
+            "hardware",
+            "--dry-run",
+            f"hardware.port={emu.port}",
+            f"odometry.endpoint={pub.endpoint}",
+            "duration=1",
+            f"hydra.run.dir={run_dir}",
+            cwd=run_dir.parent,
+        )
     return run_dir, proc, emu
 
 
@@ -123,43 +141,59 @@ def test_slot_figures_and_validate_work_on_a_hardware_log(dry_run, tmp_path: Pat
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert metrics["loop"]["cycles"] == 30 and metrics["stop_reason"] == "duration"
     val = tmp_path / "val"
-    ok(slot("run", "experiment=validate", f"experiment.reference={run_dir}", f"experiment.candidate={run_dir}",
-            f"hydra.run.dir={val}", cwd=tmp_path))
+    ok(
+        slot(
+            "run",
+            "experiment=validate",
+            f"experiment.reference={run_dir}",
+            f"experiment.candidate={run_dir}",
+            f"hydra.run.dir={val}",
+            cwd=tmp_path,
+        )
+    )
     rows = json.loads((val / "metrics.json").read_text())["rows"]
     assert rows and all(r["rmse_m"] == 0 for r in rows)
 
 
 def test_missing_serial_port_is_one_line(tmp_path: Path) -> None:
-    assert_one_line_error(slot("hardware", "hardware.port=/dev/no-such-u2d2", f"hydra.run.dir={tmp_path / 'r'}",
-                               cwd=tmp_path), "/dev/no-such-u2d2")
+    assert_one_line_error(
+        slot("hardware", "hardware.port=/dev/no-such-u2d2", f"hydra.run.dir={tmp_path / 'r'}", cwd=tmp_path),
+        "/dev/no-such-u2d2",
+    )
 
 
 def test_a_servo_that_does_not_answer_is_one_line(tmp_path: Path) -> None:
     with ServoEmulator([1, 2, 3]) as emu:
-        proc = slot("hardware", f"hardware.port={emu.port}", "hardware.comm_retries=0",
-                    f"hydra.run.dir={tmp_path / 'r'}", cwd=tmp_path)
+        proc = slot(
+            "hardware",
+            f"hardware.port={emu.port}",
+            "hardware.comm_retries=0",
+            f"hydra.run.dir={tmp_path / 'r'}",
+            cwd=tmp_path,
+        )
         writes = list(emu.writes)
     assert_one_line_error(proc, "servo ID 4 (FR)", "does not answer ping")
     assert writes == []  # checks first: nothing was written to the servos that did answer
 
 
-@pytest.mark.parametrize("args, words", [
-    (["hardware.watchdog_ms=90"], ["hardware.watchdog_ms", "20"]),
-    (["odometry=vicon"], ["unknown odometry 'vicon'", "replay, sim, zmq"]),
-    (["-m", "duration=1,2"], ["multirun"]),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["hardware.watchdog_ms=90"], ["hardware.watchdog_ms", "20"]),
+        (["odometry=vicon"], ["unknown odometry 'vicon'", "replay, sim, zmq"]),
+        (["-m", "duration=1,2"], ["multirun"]),
+    ],
+)
 def test_bad_arguments_are_one_line(args: list[str], words: list[str], tmp_path: Path) -> None:
     assert_one_line_error(slot("hardware", *args, cwd=tmp_path), *words)
 
 
 def test_sigterm_stops_like_ctrl_c(tmp_path: Path) -> None:
     """In process (a service manager's SIGTERM): exit 143, torque off, log closed."""
-    from test_hardware_loop import run
-
     with ServoEmulator() as emu, OdometryPublisher() as pub:
         timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGTERM))
         timer.start()
-        result, _ = run(emu, pub, tmp_path, "duration=10")
+        result, _ = run_on_emulator(emu, pub, tmp_path, "duration=10")
         timer.join()
         torque = emu.torque()
     assert result.exit_code == 143 and "SIGTERM" in result.message

@@ -7,26 +7,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 
-from helpers import CONF, load
 from slotexp.body import euler_to_quat, quat_to_rot
-from slotexp.config import ConfigError, register_schemas
-from slotexp.hardware.config import HardwareSlotConfig, load_hardware_config
+from slotexp.errors import ConfigError
+from slotexp.hardware import xl430
+from slotexp.hardware.config import HardwareConfig
 from slotexp.hardware.mapping import ServoMap
 from slotexp.hardware.odometry import sample_from_message
 from slotexp.hardware.timing import Deadlines, LoopStats
-
-
-def hw(*overrides: str) -> HardwareSlotConfig:
-    register_schemas()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return load_hardware_config(compose("hardware_config", overrides=list(overrides)))
+from tests.helpers import CONF, load, load_hardware
 
 
 # --------------------------------------------------------------------------- config
 def test_hardware_config_composes_with_the_simulation_settings() -> None:
-    cfg = hw()
+    cfg = load_hardware()
     assert cfg.experiment.name == "hardware" and cfg.duration is None and cfg.dry_run is False
     assert cfg.hardware.ids == [1, 2, 3, 4] and cfg.hardware.model_number == 1060
     assert cfg.hardware.rate_hz == cfg.mpc.rate_hz == 30.0
@@ -38,34 +32,58 @@ def test_hardware_config_composes_with_the_simulation_settings() -> None:
         assert getattr(cfg, part) == getattr(sim, part), f"{part}: keep conf/hardware_config.yaml in step"
 
 
-@pytest.mark.parametrize("override, words", [
-    ("hardware.rate_hz=50", ["hardware.rate_hz", "mpc.rate_hz"]),
-    ("hardware.watchdog_ms=90", ["watchdog_ms", "multiple of 20"]),
-    ("hardware.watchdog_ms=40", ["watchdog_ms", "two loop periods"]),
-    ("hardware.ids=[1,2,2,4]", ["hardware.ids", "repeats"]),
-    ("hardware.ids=[1,2,3]", ["hardware.ids", "exactly 4"]),
-    ("hardware.direction=[1,0,1,1]", ["hardware.direction[1]"]),
-    ("hardware.baudrate=12345", ["hardware.baudrate", "1000000"]),
-    ("hardware.min_position_deg=[130,260,130,130]", ["min_position_deg[1]"]),
-    ("hardware.max_position_deg=[250,250,250,400]", ["max_position_deg[3]"]),
-    ("odometry=replay", ["odometry.path"]),
-    ("odometry.endpoint=localhost:5556", ["odometry.endpoint"]),
-    ("odometry.max_age_s=0", ["odometry.max_age_s"]),
-    ("duration=-1", ["duration"]),
-])
+@pytest.mark.parametrize(
+    "override, words",
+    [
+        ("hardware.rate_hz=50", ["hardware.rate_hz", "mpc.rate_hz"]),
+        ("hardware.watchdog_ms=90", ["watchdog_ms", "multiple of 20"]),
+        ("hardware.watchdog_ms=40", ["watchdog_ms", "two loop periods"]),
+        ("hardware.ids=[1,2,2,4]", ["hardware.ids", "repeats"]),
+        ("hardware.ids=[1,2,3]", ["hardware.ids", "exactly 4"]),
+        ("hardware.direction=[1,0,1,1]", ["hardware.direction[1]"]),
+        ("hardware.baudrate=12345", ["hardware.baudrate", "1000000"]),
+        ("hardware.min_position_deg=[130,260,130,130]", ["min_position_deg[1]"]),
+        ("hardware.max_position_deg=[250,250,250,400]", ["max_position_deg[3]"]),
+        ("odometry=replay", ["odometry.path"]),
+        ("odometry.endpoint=localhost:5556", ["odometry.endpoint"]),
+        ("odometry.max_age_s=0", ["odometry.max_age_s"]),
+        ("duration=-1", ["duration"]),
+    ],
+)
 def test_bad_values_fail_with_one_line_naming_the_key(override: str, words: list[str]) -> None:
     with pytest.raises(ConfigError) as err:
-        hw(override)
+        load_hardware(override)
     text = str(err.value)
     assert "\n" not in text
     for w in words:
         assert w in text, text
 
 
+def test_schema_defaults_come_from_the_control_table_module() -> None:
+    hw = HardwareConfig()
+    assert hw.model_number == xl430.MODEL_NUMBER == 1060
+    assert hw.watchdog_ms % xl430.WATCHDOG_UNIT_MS == 0
+
+
+# --------------------------------------------------------------------------- control table
+def test_sync_transactions_span_contiguous_items_only() -> None:
+    # Present Load, Velocity and Position: one 10-byte sync read from 126 (XL430-W250 e-Manual)
+    assert xl430.span(xl430.PRESENT_BLOCK) == (xl430.PRESENT_BLOCK_ADDR, xl430.PRESENT_BLOCK_LEN) == (126, 10)
+    assert xl430.span(["Goal_Position"]) == (116, 4)
+    with pytest.raises(ValueError, match="not contiguous"):
+        xl430.span(["Goal_Position", "Present_Position"])
+    with pytest.raises(ValueError, match="not contiguous"):
+        xl430.span(["Present_Load", "Present_Position"])  # a gap: Present Velocity left out
+
+
 # --------------------------------------------------------------------------- mapping
 def test_tendon_to_servo_mapping_is_the_documented_formula() -> None:
-    cfg = hw("hardware.direction=[1,-1,1,-1]", "hardware.zero_offset_deg=[130,250,130,250]",
-             "hardware.min_position_deg=[130,130,130,130]", "hardware.max_position_deg=[250,250,250,250]")
+    cfg = load_hardware(
+        "hardware.direction=[1,-1,1,-1]",
+        "hardware.zero_offset_deg=[130,250,130,250]",
+        "hardware.min_position_deg=[130,130,130,130]",
+        "hardware.max_position_deg=[250,250,250,250]",
+    )
     smap = ServoMap.from_config(cfg.hardware, cfg.robot.leg.tendon_max_deg)
     theta = np.array([0.0, 50.0, 100.0, 116.28])
     ticks, clamped = smap.to_ticks(theta)
@@ -77,10 +95,10 @@ def test_tendon_to_servo_mapping_is_the_documented_formula() -> None:
 
 
 def test_every_command_is_clamped_to_the_tendon_and_the_servo_limits() -> None:
-    cfg = hw("hardware.max_position_deg=[200,250,250,250]")
+    cfg = load_hardware("hardware.max_position_deg=[200,250,250,250]")
     smap = ServoMap.from_config(cfg.hardware, cfg.robot.leg.tendon_max_deg)
     ticks, clamped = smap.to_ticks(np.array([100.0, 150.0, -5.0, np.nan]))
-    assert ticks[0] == round(200 * 4096 / 360) and clamped[0]        # servo limit
+    assert ticks[0] == round(200 * 4096 / 360) and clamped[0]  # servo limit
     assert ticks[1] == round((130 + 116.28) * 4096 / 360) and clamped[1]  # tendon maximum
     assert ticks[2] == round(130 * 4096 / 360) and clamped[2]  # no negative tendon
     assert ticks[3] == round(130 * 4096 / 360) and clamped[3]  # a NaN never reaches the servo
@@ -93,8 +111,17 @@ def test_odometry_message_to_mpc_state() -> None:
     rpy = np.array([0.1, -0.2, 0.7])
     q = euler_to_quat(*rpy)  # w, x, y, z
     w_body = np.array([0.3, -0.1, 0.2])
-    msg = json.loads(json.dumps({"t": 5.0, "position": [1, 2, 0.04], "orientation": [q[1], q[2], q[3], q[0]],
-                                 "linear_velocity": [0.1, 0.0, -0.01], "angular_velocity": list(w_body)}))
+    msg = json.loads(
+        json.dumps(
+            {
+                "t": 5.0,
+                "position": [1, 2, 0.04],
+                "orientation": [q[1], q[2], q[3], q[0]],
+                "linear_velocity": [0.1, 0.0, -0.01],
+                "angular_velocity": list(w_body),
+            }
+        )
+    )
     s = sample_from_message(msg, received=123.0)
     assert np.allclose(s.state[0:3], rpy)
     assert np.allclose(s.state[3:6], [1, 2, 0.04])
@@ -103,14 +130,34 @@ def test_odometry_message_to_mpc_state() -> None:
     assert np.allclose(s.quaternion, q) and s.stamp == 5.0 and s.received == 123.0
 
 
-@pytest.mark.parametrize("msg", [
-    [1, 2], {"position": [0, 0, 0]}, {"t": 0, "position": [0, 0], "orientation": [0, 0, 0, 1],
-                                      "linear_velocity": [0, 0, 0], "angular_velocity": [0, 0, 0]},
-    {"t": 0, "position": [0, 0, 0], "orientation": [0, 0, 0, 0], "linear_velocity": [0, 0, 0],
-     "angular_velocity": [0, 0, 0]},
-    {"t": 0, "position": [0, 0, None], "orientation": [0, 0, 0, 1], "linear_velocity": [0, 0, 0],
-     "angular_velocity": [0, 0, 0]},
-])
+@pytest.mark.parametrize(
+    "msg",
+    [
+        [1, 2],
+        {"position": [0, 0, 0]},
+        {
+            "t": 0,
+            "position": [0, 0],
+            "orientation": [0, 0, 0, 1],
+            "linear_velocity": [0, 0, 0],
+            "angular_velocity": [0, 0, 0],
+        },
+        {
+            "t": 0,
+            "position": [0, 0, 0],
+            "orientation": [0, 0, 0, 0],
+            "linear_velocity": [0, 0, 0],
+            "angular_velocity": [0, 0, 0],
+        },
+        {
+            "t": 0,
+            "position": [0, 0, None],
+            "orientation": [0, 0, 0, 1],
+            "linear_velocity": [0, 0, 0],
+            "angular_velocity": [0, 0, 0],
+        },
+    ],
+)
 def test_malformed_odometry_is_rejected(msg) -> None:
     with pytest.raises((ValueError, TypeError)):
         sample_from_message(msg, 0.0)
@@ -141,7 +188,7 @@ def test_deadlines_do_not_drift_and_count_overruns() -> None:
     # on time: cycles start on the 0.1 s grid; a late cycle runs at once; a cycle >1 period late skips
     assert starts[:3] == pytest.approx([0.0, 0.1, 0.2])
     assert starts[3] == pytest.approx(0.33)  # 0.2 + 0.13: late, started immediately
-    assert starts[4] == pytest.approx(0.4)   # back on the grid
+    assert starts[4] == pytest.approx(0.4)  # back on the grid
     assert starts[5] == pytest.approx(0.5)
     assert starts[6] == pytest.approx(0.85)  # 0.5 + 0.35: deadlines 0.6 and 0.7 skipped, the 0.8 one runs late
     assert d.overruns == 2 and d.skipped == 2
@@ -158,13 +205,13 @@ def test_config_files_exist_for_every_option() -> None:
 
 
 def test_warm_up_leaves_the_controller_as_it_was() -> None:
-    from slotexp.controller import Controller
+    from slotexp.controllers.paper import PaperController as Controller
     from slotexp.hardware.odometry import sample_from_state
     from slotexp.hardware.run import warm_up
-    from slotexp.plant import nominal_state
+    from slotexp.plants import nominal_state
     from slotexp.robot import build_robot
 
-    cfg = hw()
+    cfg = load_hardware()
     robot = build_robot(cfg.robot)
     x = nominal_state(robot)
     fresh, warmed = Controller(cfg, robot), Controller(cfg, robot)

@@ -8,15 +8,25 @@ SDK sees a servo.
 
 from __future__ import annotations
 
+import ast
 import random
 import time
 
 import pytest
-from dynamixel_sdk import (COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, GroupSyncRead, GroupSyncWrite,
-                           PacketHandler, PortHandler)
+from dynamixel_sdk import (
+    COMM_RX_CORRUPT,
+    COMM_RX_TIMEOUT,
+    COMM_SUCCESS,
+    GroupSyncRead,
+    GroupSyncWrite,
+    PacketHandler,
+    PortHandler,
+)
 from dynamixel_sdk.protocol2_packet_handler import Protocol2PacketHandler
 
-from servo_emulator import XL430_MODEL, ServoEmulator, crc16, packet, stuff, unstuff
+from slotexp.hardware import xl430
+from tests import servo_emulator
+from tests.servo_emulator import CONTROL_TABLE, XL430_MODEL, ServoEmulator, crc16, packet, stuff, unstuff
 
 
 @pytest.fixture()
@@ -26,6 +36,20 @@ def bus():
         assert port.openPort() and port.setBaudRate(1000000)
         yield emu, port, PacketHandler(2.0)
         port.closePort()
+
+
+def test_the_emulator_control_table_agrees_with_the_library() -> None:
+    """Two control tables written independently from the e-Manual: every item the library defines has the
+    same address and size in the emulator's (names map by lower case: "Goal_Position" -> "goal_position")."""
+    for name, (addr, size) in xl430.CONTROL_TABLE.items():
+        assert name.lower() in CONTROL_TABLE, f"{name} is not in the emulator's control table"
+        assert CONTROL_TABLE[name.lower()][:2] == (addr, size), name
+    assert XL430_MODEL == xl430.MODEL_NUMBER
+    # the agreement means something only while the emulator does not take the library's table
+    tree = ast.parse(open(servo_emulator.__file__).read())
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    imported |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert not any(m.split(".")[0] in ("slotexp", "tests") for m in imported), imported
 
 
 def test_crc_matches_the_sdk_table() -> None:
@@ -44,7 +68,7 @@ def test_stuffing_round_trip_matches_the_sdk() -> None:
     stuffed = ph.addStuffing(sdk)
     n = stuffed[5] + 7
     crc = ph.updateCRC(0, stuffed, n - 2)
-    stuffed[n - 2:n] = [crc & 0xFF, crc >> 8]
+    stuffed[n - 2 : n] = [crc & 0xFF, crc >> 8]
     assert list(ours) == stuffed[:n]
     assert unstuff(ours, 7, len(ours) - 2) == body
     assert stuff(b"\x00\x00\x00", b"\xff\xff\xfd") == b"\xff\xff\xfd\xfd"

@@ -5,8 +5,9 @@ import pytest
 from scipy.linalg import eigh
 
 from slotexp.config import LegConfig
-from slotexp.leg import build_leg, elastic_energy, elastic_forces, elastic_hessian_band, model_from_shape
-from slotexp.legsim import LegSim, make_par, stable_dt
+from slotexp.soft.integrators import LegSim, stable_dt
+from slotexp.soft.params import make_par
+from slotexp.soft.rod import build_leg, elastic_energy, elastic_forces, elastic_hessian_band, model_from_shape
 
 L, W, H, E, RHO = 0.19, 0.02, 0.005, 1.0e7, 1200.0
 EI = E * W * H**3 / 12
@@ -91,8 +92,9 @@ def test_first_natural_frequency_matches_cantilever_theory():
     m = uniform()
     n = 3 * m.n_nodes - 1
     band = np.zeros((n, 9))
-    elastic_hessian_band(m.rest_pos, m.rest_theta, m.rest_theta[0], m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei,
-                         band, 1.0)
+    elastic_hessian_band(
+        m.rest_pos, m.rest_theta, m.rest_theta[0], m.l0, m.voronoi, m.dtheta0, m.ea, m.ga, m.ei, band, 1.0
+    )
     k = np.zeros((n, n))
     for i in range(n):
         for j in range(9):
@@ -127,11 +129,12 @@ def test_node_convergence_default_leg_under_gravity_and_tendon():
         cfg = LegConfig(n_nodes=n)
         m = build_leg(cfg)
         na = int(round(2 * (n - 1) / 3))
-        sim = LegSim(m, make_par(gravity=9.81, damping=50.0, tip_fz=-1.0, tendon_k=2e4, tendon_offset=0.01,
-                                 n_anchor=na))
-        from slotexp.legsim import tendon_length
+        sim = LegSim(
+            m, make_par(gravity=9.81, damping=50.0, tip_fz=-1.0, tendon_k=2e4, tendon_offset=0.01, n_anchor=na)
+        )
+        from slotexp.soft.loads import tendon_length
 
-        sim.par[10] = tendon_length(sim.pos, sim.theta, sim.root[4], sim.par) - 0.004  # 4 mm wound in
+        sim.free_length = tendon_length(sim.pos, sim.theta, sim.root[4], sim.par) - 0.004  # 4 mm wound in
         tips[n] = settle(sim, "implicit", 2e-5 if n == 121 else 1e-4, 2.0).tip
     assert np.linalg.norm(tips[31] - tips[121]) < 1e-3
 
@@ -155,18 +158,31 @@ def test_symplectic_energy_drift_without_damping():
 def test_implicit_and_symplectic_agree_on_a_transient_with_tendon_and_contact():
     # Smooth loading (the servo winds 4 mm of cable in over 0.1 s, the foot on the
     # ground, friction on): both first-order schemes must follow the same path.
-    from slotexp.legsim import P_TFREE, tendon_length
+    from slotexp.soft.loads import tendon_length
 
     m = build_leg(LegConfig())
     results = {}
     for integrator, h in (("implicit", 1e-5), ("symplectic", 0.5 * stable_dt(m, 1e5))):
-        sim = LegSim(m, make_par(gravity=9.81, damping=20.0, k_contact=1e5, d_contact=10.0, mu=0.1, ground=1.0,
-                                 tendon_k=2e4, tendon_offset=0.01, tendon_max=140.0, n_anchor=20))
+        sim = LegSim(
+            m,
+            make_par(
+                gravity=9.81,
+                damping=20.0,
+                k_contact=1e5,
+                d_contact=10.0,
+                mu=0.1,
+                ground=1.0,
+                tendon_k=2e4,
+                tendon_offset=0.01,
+                tendon_max=140.0,
+                n_anchor=20,
+            ),
+        )
         free0 = tendon_length(sim.pos, sim.theta, sim.root[4], sim.par)
         traj = []
         chunk = 1e-3
         for k in range(200):
-            sim.par[P_TFREE] = free0 - 0.004 * min(1.0, k * chunk / 0.1)
+            sim.free_length = free0 - 0.004 * min(1.0, k * chunk / 0.1)
             sim.step(h, int(round(chunk / h)), integrator)
             traj.append(np.r_[sim.tip, sim.out[3]])
         results[integrator] = np.asarray(traj)

@@ -6,7 +6,8 @@ from scipy.linalg import expm
 
 from slotexp.body import euler_rate_matrix, euler_to_quat, quat_to_euler
 from slotexp.mpc import continuous_model, discretize, rotation_from_euler
-from slotexp.plant import IdealPlant, nominal_state
+from slotexp.plants import ForceCommand, nominal_state
+from slotexp.plants.ideal import IdealPlant
 from slotexp.robot import build_robot
 from tests.helpers import load
 
@@ -38,13 +39,19 @@ def test_input_matrix_matches_finite_differences(robot):
     u = rng.normal(0, 2, 12)
     a, b, g = continuous_model(x, lever, robot.mass, robot.inertia_body, G)
     h = 1e-6
-    fd = np.column_stack([(f_continuous(x, u + h * e, lever, robot.mass, robot.inertia_body)
-                           - f_continuous(x, u - h * e, lever, robot.mass, robot.inertia_body)) / (2 * h)
-                          for e in np.eye(12)])
+    fd = np.column_stack(
+        [
+            (
+                f_continuous(x, u + h * e, lever, robot.mass, robot.inertia_body)
+                - f_continuous(x, u - h * e, lever, robot.mass, robot.inertia_body)
+            )
+            / (2 * h)
+            for e in np.eye(12)
+        ]
+    )
     np.testing.assert_allclose(b, fd, atol=1e-6)
     # the affine model reproduces f itself at the linearisation point
-    np.testing.assert_allclose(a @ x + b @ u + g, f_continuous(x, u, lever, robot.mass, robot.inertia_body),
-                               atol=1e-9)
+    np.testing.assert_allclose(a @ x + b @ u + g, f_continuous(x, u, lever, robot.mass, robot.inertia_body), atol=1e-9)
 
 
 def test_state_matrix_matches_finite_differences_at_rest(robot):
@@ -56,9 +63,16 @@ def test_state_matrix_matches_finite_differences_at_rest(robot):
     u = np.zeros(12)
     a, _, _ = continuous_model(x, lever, robot.mass, robot.inertia_body, G)
     h = 1e-6
-    fd = np.column_stack([(f_continuous(x + h * e, u, lever, robot.mass, robot.inertia_body)
-                           - f_continuous(x - h * e, u, lever, robot.mass, robot.inertia_body)) / (2 * h)
-                          for e in np.eye(12)])
+    fd = np.column_stack(
+        [
+            (
+                f_continuous(x + h * e, u, lever, robot.mass, robot.inertia_body)
+                - f_continuous(x - h * e, u, lever, robot.mass, robot.inertia_body)
+            )
+            / (2 * h)
+            for e in np.eye(12)
+        ]
+    )
     np.testing.assert_allclose(a, fd, atol=1e-7)
 
 
@@ -72,11 +86,11 @@ def test_zoh_discretisation_is_exact(robot):
     n = 12
     aug = np.zeros((n + 13, n + 13))
     aug[:n, :n] = a
-    aug[:n, n:n + 12] = b
+    aug[:n, n : n + 12] = b
     aug[:n, n + 12] = g
     e = expm(aug * period)
     np.testing.assert_allclose(ad, e[:n, :n], atol=1e-12)
-    np.testing.assert_allclose(bd, e[:n, n:n + 12], atol=1e-12)
+    np.testing.assert_allclose(bd, e[:n, n : n + 12], atol=1e-12)
     np.testing.assert_allclose(gd, e[:n, n + 12], atol=1e-12)
 
 
@@ -95,12 +109,12 @@ def test_one_period_prediction_matches_nonlinear_plant(robot):
     period = 1 / 30
     ad, bd, gd = discretize(a, b, g, period)
     predicted = ad @ x0 + bd @ forces.ravel() + gd
-    plant.step(forces, period)
+    plant.step(ForceCommand(forces), period)
     actual = plant.state()
-    np.testing.assert_allclose(actual[3:6], predicted[3:6], atol=2e-5)   # m
+    np.testing.assert_allclose(actual[3:6], predicted[3:6], atol=2e-5)  # m
     np.testing.assert_allclose(actual[9:12], predicted[9:12], atol=2e-5)  # m/s
-    np.testing.assert_allclose(actual[0:3], predicted[0:3], atol=2e-3)    # rad
-    np.testing.assert_allclose(actual[6:9], predicted[6:9], atol=5e-2)    # rad/s; lever arms rotate in the plant
+    np.testing.assert_allclose(actual[0:3], predicted[0:3], atol=2e-3)  # rad
+    np.testing.assert_allclose(actual[6:9], predicted[6:9], atol=5e-2)  # rad/s; lever arms rotate in the plant
 
 
 def test_euler_quaternion_round_trip():

@@ -3,15 +3,13 @@
 import numpy as np
 import pytest
 
-from slotexp.controller import Controller
+from slotexp.backends import backend_class
+from slotexp.controllers.paper import PaperController as Controller
 from slotexp.gait import GaitMatrix, contact_plan
-from slotexp.backends.cvxpy_qp import CvxpyMpc as ConvexMpc
-from slotexp.plant import nominal_state
+from slotexp.plants import nominal_state
 from slotexp.reference import reference
 from slotexp.robot import build_robot
-from tests.helpers import load
-
-TOL = 1e-4  # N
+from tests.helpers import PLAN_TOL, check_plan_constraints, load
 
 
 def _problem(*overrides, seed=0, offset_scale=1.0):
@@ -22,8 +20,9 @@ def _problem(*overrides, seed=0, offset_scale=1.0):
     robot = build_robot(cfg.robot)
     rng = np.random.default_rng(seed)
     x = nominal_state(robot)
-    x += offset_scale * np.concatenate([rng.normal(0, 0.05, 3), [0, 0, rng.normal(0, 0.005)],
-                                        rng.normal(0, 0.1, 3), rng.normal(0, 0.05, 3)])
+    x += offset_scale * np.concatenate(
+        [rng.normal(0, 0.05, 3), [0, 0, rng.normal(0, 0.005)], rng.normal(0, 0.1, 3), rng.normal(0, 0.05, 3)]
+    )
     gait = GaitMatrix(cfg.gait.phases)
     for _ in range(rng.integers(0, 30)):
         gait.roll()
@@ -32,26 +31,14 @@ def _problem(*overrides, seed=0, offset_scale=1.0):
     return cfg, robot, x, x_ref, plan
 
 
-def _check_constraints(cfg, robot, sol, x, plan):
-    mpc_forces = sol.plan_fz
-    assert np.all(mpc_forces <= plan.fz_max + TOL)
-    assert np.all(mpc_forces >= plan.fz_min - TOL)
-    weight = robot.mass * cfg.sim.gravity
-    assert np.all(np.abs(mpc_forces.sum(axis=1) - weight) <= cfg.mpc.force_balance_band + TOL)
-    fx, fy, fz = sol.forces[:, 0], sol.forces[:, 1], sol.forces[:, 2]
-    assert np.all(np.abs(fx) <= plan.mu[0] * fz + TOL)
-    assert np.all(np.abs(fy) <= plan.mu[0] * fz + TOL)
-    np.testing.assert_allclose(sol.predicted[0], x, atol=1e-6)
-
-
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("gait", ["walk", "crawl", "omni60"])
 def test_solutions_satisfy_every_constraint(seed, gait):
     cfg, robot, x, x_ref, plan = _problem(f"gait={gait}", seed=seed)
-    mpc = ConvexMpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
+    mpc = backend_class(cfg.solver.name)(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
     sol = mpc.solve(x, x_ref, robot.feet_body, plan)
     assert sol.success, sol.status
-    _check_constraints(cfg, robot, sol, x, plan)
+    check_plan_constraints(cfg, robot, sol, x, plan)
     # the predicted states obey the model exactly (equality constraints)
     mpc.set_model(x, robot.feet_body)
     a, b, g = mpc.a.value, mpc.b[0].value, mpc.g.value
@@ -66,7 +53,7 @@ def test_cvxpy_backends_agree(seed):
     for solver in ("clarabel", "osqp", "scs"):
         overrides = [f"solver={solver}", "solver.eps_abs=1e-7", "solver.eps_rel=1e-7", "solver.max_iters=200000"]
         cfg, robot, x, x_ref, plan = _problem(*overrides, seed=seed, offset_scale=0.5)
-        mpc = ConvexMpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
+        mpc = backend_class(cfg.solver.name)(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
         sol = mpc.solve(x, x_ref, robot.feet_body, plan)
         assert sol.success, (solver, sol.status)
         results[solver] = sol
@@ -84,7 +71,7 @@ def test_strict_force_balance_cannot_correct_height():
         cfg, robot, x, x_ref, plan = _problem(f"mpc.force_balance_band={band}", offset_scale=0.0)
         x = nominal_state(robot)
         x[5] = x_ref[0, 5] - 0.01
-        mpc = ConvexMpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
+        mpc = backend_class(cfg.solver.name)(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
         sol = mpc.solve(x, x_ref, robot.feet_body, plan)
         assert sol.success
         rise = sol.predicted[-1, 5] - x[5]
@@ -113,4 +100,4 @@ def test_feasible_steps_update_last_feasible_input():
     step = ctrl.step(0.0, x, robot.feet_body + x[3:6])
     assert not step.fallback
     np.testing.assert_allclose(ctrl.last_feasible, step.forces)
-    assert all(v <= TOL for v in step.violations.values())
+    assert all(v <= PLAN_TOL for v in step.violations.values())

@@ -165,15 +165,28 @@ def test_foxglove_pose_and_tf(tmp_path: Path) -> None:
     path = tmp_path / "pose.mcap"
     with Recorder(path) as rec:
         rec.write_pose(0.5, [1.0, 2.0, 3.0], [0.9, 0.1, 0.2, 0.3])
-        rec.write_pose(2.000000007, np.array([4.0, 5.0, 6.0]), np.array([0.0, 1.0, 0.0, 0.0]),
-                       frame_id="map", child_frame_id="base")
+        rec.write_pose(
+            2.000000007,
+            np.array([4.0, 5.0, 6.0]),
+            np.array([0.0, 1.0, 0.0, 0.0]),
+            frame_id="map",
+            child_frame_id="base",
+        )
     log = read_log(path)
 
     pose = log["/torso/pose"]
     assert list(pose.columns) == [
-        "t", "timestamp.sec", "timestamp.nsec", "frame_id",
-        "pose.position.x", "pose.position.y", "pose.position.z",
-        "pose.orientation.x", "pose.orientation.y", "pose.orientation.z", "pose.orientation.w",
+        "t",
+        "timestamp.sec",
+        "timestamp.nsec",
+        "frame_id",
+        "pose.position.x",
+        "pose.position.y",
+        "pose.position.z",
+        "pose.orientation.x",
+        "pose.orientation.y",
+        "pose.orientation.z",
+        "pose.orientation.w",
     ]
     r0 = pose.iloc[0]
     assert (r0["timestamp.sec"], r0["timestamp.nsec"]) == (0, 500_000_000)
@@ -187,9 +200,18 @@ def test_foxglove_pose_and_tf(tmp_path: Path) -> None:
 
     tf = log["/tf"]
     assert list(tf.columns) == [
-        "t", "timestamp.sec", "timestamp.nsec", "parent_frame_id", "child_frame_id",
-        "translation.x", "translation.y", "translation.z",
-        "rotation.x", "rotation.y", "rotation.z", "rotation.w",
+        "t",
+        "timestamp.sec",
+        "timestamp.nsec",
+        "parent_frame_id",
+        "child_frame_id",
+        "translation.x",
+        "translation.y",
+        "translation.z",
+        "rotation.x",
+        "rotation.y",
+        "rotation.z",
+        "rotation.w",
     ]
     assert list(tf["parent_frame_id"]) == ["world", "map"]
     assert list(tf["child_frame_id"]) == ["torso", "base"]
@@ -212,9 +234,7 @@ def test_foxglove_pose_and_tf(tmp_path: Path) -> None:
     assert set(pj["properties"]["pose"]["properties"]) == {"position", "orientation"}
     assert set(pj["properties"]["pose"]["properties"]["orientation"]["properties"]) == set("xyzw")
     tj = json.loads(by_topic["/tf"].data)
-    assert set(tj["properties"]) == {
-        "timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"
-    }
+    assert set(tj["properties"]) == {"timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"}
     assert set(tj["properties"]["translation"]["properties"]) == set("xyz")
     assert set(tj["properties"]["rotation"]["properties"]) == set("xyzw")
     assert tj["properties"]["rotation"]["properties"]["w"] == {"type": "number"}
@@ -318,8 +338,9 @@ def test_sigkilled_writer_leaves_readable_file(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(path)], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _CHILD, str(path)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
     try:
         deadline = time.monotonic() + 8.0
         while time.monotonic() < deadline:

@@ -1,25 +1,12 @@
 """The soft-leg experiments through the CLI: leg, calibrate, closed loop on plant=cosserat."""
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 import yaml
 
 from slotexp.record import read_log
-
-SLOT = str(Path(sys.executable).parent / "slot")
-
-
-def slot(*args, cwd, timeout=300):
-    return subprocess.run([SLOT, *map(str, args)], cwd=cwd, capture_output=True, text=True, timeout=timeout)
-
-
-def ok(proc):
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    return proc
+from tests.helpers import ok, slot
 
 
 def one_line_error(proc, *words):
@@ -34,9 +21,19 @@ def one_line_error(proc, *words):
 
 def test_leg_experiment_matches_euler_bernoulli(tmp_path):
     out = tmp_path / "leg"
-    ok(slot("run", "experiment=leg", "robot.leg.rest_shape=straight", "robot.leg.thickness_tip=0.0135",
-            "sim.gravity=0", "leg_load.ground=false", "leg_load.tip_force=[0,-0.01]", f"hydra.run.dir={out}",
-            cwd=tmp_path))
+    ok(
+        slot(
+            "run",
+            "experiment=leg",
+            "robot.leg.rest_shape=straight",
+            "robot.leg.thickness_tip=0.0135",
+            "sim.gravity=0",
+            "leg_load.ground=false",
+            "leg_load.tip_force=[0,-0.01]",
+            f"hydra.run.dir={out}",
+            cwd=tmp_path,
+        )
+    )
     result = json.loads((out / "leg.json").read_text())
     ei = 1e7 * 0.02 * 0.0135**3 / 12
     assert result["tip_z"] == pytest.approx(-0.01 * 0.19**3 / (3 * ei), rel=0.01)
@@ -49,8 +46,16 @@ def test_leg_experiment_matches_euler_bernoulli(tmp_path):
 
 def test_calibrate_fits_an_affine_map_the_controller_can_load(tmp_path):
     out = tmp_path / "cal"
-    ok(slot("run", "experiment=calibrate", "experiment.angles=6", "leg_load.settle_time=0.9",
-            f"hydra.run.dir={out}", cwd=tmp_path))
+    ok(
+        slot(
+            "run",
+            "experiment=calibrate",
+            "experiment.angles=6",
+            "leg_load.settle_time=0.9",
+            f"hydra.run.dir={out}",
+            cwd=tmp_path,
+        )
+    )
     fit = json.loads((out / "calibrate.json").read_text())
     assert fit["slope_n_per_deg"] > 0 and fit["r2"] > 0.99
     assert fit["paper"] == {"slope_n_per_deg": 0.107, "offset_n": -6.91}
@@ -62,8 +67,16 @@ def test_calibrate_fits_an_affine_map_the_controller_can_load(tmp_path):
 
 def test_closed_loop_on_the_soft_plant_logs_legs_and_animates(tmp_path):
     out = tmp_path / "sim"
-    ok(slot("run", "experiment=simulate", "plant=cosserat", "experiment.duration=1", f"hydra.run.dir={out}",
-            cwd=tmp_path))
+    ok(
+        slot(
+            "run",
+            "experiment=simulate",
+            "plant=cosserat",
+            "experiment.duration=1",
+            f"hydra.run.dir={out}",
+            cwd=tmp_path,
+        )
+    )
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["infeasible_steps"] == 0
     assert abs(metrics["com_rmse_z_m"]) < 0.02
@@ -78,8 +91,16 @@ def test_closed_loop_on_the_soft_plant_logs_legs_and_animates(tmp_path):
 
 
 def test_divergence_stops_with_one_line_naming_dt(tmp_path):
-    proc = slot("run", "experiment=simulate", "plant=cosserat", "plant.integrator=symplectic", "sim.dt=2e-4",
-                "experiment.duration=1", f"hydra.run.dir={tmp_path / 'div'}", cwd=tmp_path)
+    proc = slot(
+        "run",
+        "experiment=simulate",
+        "plant=cosserat",
+        "plant.integrator=symplectic",
+        "sim.dt=2e-4",
+        "experiment.duration=1",
+        f"hydra.run.dir={tmp_path / 'div'}",
+        cwd=tmp_path,
+    )
     one_line_error(proc, "sim.dt", "stability limit")
 
 

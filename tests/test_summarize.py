@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from slotexp.summarize import summarize
-from tests.test_cli import assert_one_line_error, last_line, ok, slot
+from tests.helpers import assert_one_line_error, last_line, ok, slot
 
 TABLE1 = "scenario,max_cost,mean_cost,final_cost,settle_s,infeasible_steps\n"
 
@@ -18,8 +18,20 @@ TABLE1 = "scenario,max_cost,mean_cost,final_cost,settle_s,infeasible_steps\n"
 def sweep(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("sweep")
     out = root / "multirun"
-    ok(slot("run", "-m", "experiment=perturb", "experiment.scenarios=[baseline,noise]", "experiment.duration=0.5",
-            "experiment.n_jobs=1", "solver=daqp,osqp_direct", f"hydra.sweep.dir={out}", cwd=root, timeout=300))
+    ok(
+        slot(
+            "run",
+            "-m",
+            "experiment=perturb",
+            "experiment.scenarios=[baseline,noise]",
+            "experiment.duration=0.5",
+            "experiment.n_jobs=1",
+            "solver=daqp,osqp_direct",
+            f"hydra.sweep.dir={out}",
+            cwd=root,
+            timeout=300,
+        )
+    )
     return out
 
 
@@ -43,8 +55,7 @@ def test_swept_settings_become_columns_and_deterministic_counts_apart(tmp_path: 
     for i, horizon in enumerate((10, 12)):
         job = tmp_path / f"{i}_mpc.horizon={horizon},solver=scs"
         (job / ".hydra").mkdir(parents=True)
-        (job / ".hydra" / "overrides.yaml").write_text(f"- mpc.horizon={horizon}\n- solver=scs\n"
-                                                       f"- hydra.sweep.dir=x\n")
+        (job / ".hydra" / "overrides.yaml").write_text(f"- mpc.horizon={horizon}\n- solver=scs\n- hydra.sweep.dir=x\n")
         (job / "table1.csv").write_text(TABLE1 + f"baseline,0.{i + 1},0.01,0.0,0.5,0\nnoise,0.2,0.02,0.001,,3\n")
     # one job also has logs: the noise scenario's fallbacks are not deterministic infeasible steps
     shutil.copytree(next(sweep.glob("0_*")) / "logs", tmp_path / "0_mpc.horizon=10,solver=scs" / "logs")

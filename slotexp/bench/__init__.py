@@ -1,7 +1,8 @@
 """Benchmarks (`slot bench`): each component measures variants side by side in one process.
 
-A component is a function ``(cfg, out_dir) -> list[BenchRow]`` registered in
-:data:`COMPONENTS` by name, with the Hydra overrides its config needs (e.g.
+A component is a module here, named after it, whose function
+``(cfg, out_dir) -> list[BenchRow]`` is registered in :data:`COMPONENTS` with
+``@register(overrides=...)``: the Hydra overrides its config needs (e.g.
 ``plant=cosserat``); the CLI composes each component's config from those, then the
 user's overrides. ``slot bench`` runs the selected components and writes
 ``bench.csv`` (columns ``component,variant,median_us,p99_us,ratio_vs_baseline``)
@@ -13,11 +14,13 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from ..config import SlotConfig
+from ..registry import Registry
 
 CSV_COLUMNS = ["component", "variant", "median_us", "p99_us", "ratio_vs_baseline"]
 
@@ -28,20 +31,29 @@ class BenchRow:
     variant: str
     median_us: float
     p99_us: float
-    ratio_vs_baseline: float            # baseline time / this time (> 1 means faster than the baseline)
+    ratio_vs_baseline: float  # baseline time / this time (> 1 means faster than the baseline)
     extra: dict[str, Any] = field(default_factory=dict)
 
 
 Component = Callable[[SlotConfig, Path], list[BenchRow]]
-COMPONENTS: dict[str, Component] = {}
-OVERRIDES: dict[str, list[str]] = {}
 
 
-def register(name: str, overrides: list[str] | None = None) -> Callable[[Component], Component]:
+@dataclass(frozen=True)
+class BenchComponent:
+    measure: Component
+    overrides: tuple[str, ...] = ()  # Hydra overrides its config needs
+
+
+COMPONENTS: Registry[BenchComponent] = Registry(__name__, "bench component")
+
+
+def register(overrides: list[str] | None = None) -> Callable[[Component], Component]:
+    """Register the decorated function as the component named after its module."""
+
     def wrap(fn: Component) -> Component:
-        COMPONENTS[name] = fn
-        OVERRIDES[name] = list(overrides or [])
+        COMPONENTS.add(fn.__module__.rsplit(".", 1)[-1], BenchComponent(fn, tuple(overrides or ())))
         return fn
+
     return wrap
 
 
@@ -52,7 +64,8 @@ def write(rows: list[BenchRow], out_dir: Path) -> Path:
         writer = csv.writer(fh)
         writer.writerow(CSV_COLUMNS)
         for r in rows:
-            writer.writerow([r.component, r.variant, f"{r.median_us:.4g}", f"{r.p99_us:.4g}",
-                             f"{r.ratio_vs_baseline:.4g}"])
+            writer.writerow(
+                [r.component, r.variant, f"{r.median_us:.4g}", f"{r.p99_us:.4g}", f"{r.ratio_vs_baseline:.4g}"]
+            )
     (out_dir / "bench.json").write_text(json.dumps([asdict(r) for r in rows], indent=2, default=float))
     return path

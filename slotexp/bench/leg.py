@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from ..config import SlotConfig
-from ..legsim import P_TFREE, LegSim, stable_dt
-from ..legstatics import clamped_leg, set_tendon
+from ..soft.integrators import LegSim, stable_dt
+from ..soft.statics import clamped_leg, set_tendon
 from . import BenchRow, register
 
 TRANSIENT_S = 0.2
@@ -54,10 +54,10 @@ def _time_steps(sim: LegSim, h: float, integrator: str, blocks: int, per_block: 
 
 def _tip_after_transient(cfg: SlotConfig, h: float, integrator: str) -> np.ndarray:
     sim = _loaded_leg(cfg)
-    free = sim.par[P_TFREE]
-    sim.par[P_TFREE] = free + cfg.robot.leg.pulley_radius * np.deg2rad(30.0)  # start 30 deg slacker
+    free = sim.free_length
+    sim.free_length = free + cfg.robot.leg.pulley_radius * np.deg2rad(30.0)  # start 30 deg slacker
     sim.step(h, int(round(0.05 / h)), integrator)
-    sim.par[P_TFREE] = free  # then a step in the command, and watch the transient
+    sim.free_length = free  # then a step in the command, and watch the transient
     sim.step(h, int(round(TRANSIENT_S / h)), integrator)
     return sim.tip
 
@@ -74,10 +74,17 @@ def _pyelastica_step_us(cfg: SlotConfig, h: float, blocks: int, per_block: int) 
         pass
 
     system = Sim()
-    rod = ea.CosseratRod.straight_rod(leg.n_nodes - 1, np.zeros(3), np.array([1.0, 0.0, 0.0]),
-                                      np.array([0.0, 0.0, 1.0]), leg.length, float(np.sqrt(area / np.pi)),
-                                      leg.density, youngs_modulus=leg.youngs_modulus,
-                                      shear_modulus=leg.youngs_modulus / (2 * 1.45))
+    rod = ea.CosseratRod.straight_rod(
+        leg.n_nodes - 1,
+        np.zeros(3),
+        np.array([1.0, 0.0, 0.0]),
+        np.array([0.0, 0.0, 1.0]),
+        leg.length,
+        float(np.sqrt(area / np.pi)),
+        leg.density,
+        youngs_modulus=leg.youngs_modulus,
+        shear_modulus=leg.youngs_modulus / (2 * 1.45),
+    )
     system.append(rod)
     system.constrain(rod).using(ea.OneEndFixedBC, constrained_position_idx=(0,), constrained_director_idx=(0,))
     system.add_forcing_to(rod).using(ea.GravityForces, acc_gravity=np.array([0.0, 0.0, -cfg.sim.gravity]))
@@ -112,7 +119,7 @@ class _StatsSink:
         pass
 
 
-@register("leg", overrides=["plant=cosserat"])
+@register(overrides=["plant=cosserat"])
 def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     from ..simulation import run_closed_loop
 
@@ -132,16 +139,36 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     for name, (h, per_step, first) in timings.items():
         med = float(np.median(per_step))
         tip_err = float(np.linalg.norm(_tip_after_transient(cfg, h, name) - tip_ref))
-        rows.append(BenchRow("leg", f"{name} dt={h:.3g}", med * 1e6, float(np.quantile(per_step, 0.99)) * 1e6,
-                             base / med, {"dt_s": h, "us_per_simulated_second": med / h * 1e6,
-                                          "first_call_s": first, "tip_error_m": tip_err,
-                                          "reference": f"symplectic dt={h_ref:.3g}", "n_nodes": sim.model.n_nodes}))
+        rows.append(
+            BenchRow(
+                "leg",
+                f"{name} dt={h:.3g}",
+                med * 1e6,
+                float(np.quantile(per_step, 0.99)) * 1e6,
+                base / med,
+                {
+                    "dt_s": h,
+                    "us_per_simulated_second": med / h * 1e6,
+                    "first_call_s": first,
+                    "tip_error_m": tip_err,
+                    "reference": f"symplectic dt={h_ref:.3g}",
+                    "n_nodes": sim.model.n_nodes,
+                },
+            )
+        )
     sym_cost = rows[0].extra["us_per_simulated_second"]
     rows[1].extra["speedup_per_simulated_second_vs_symplectic"] = sym_cost / rows[1].extra["us_per_simulated_second"]
     if py is not None:
-        rows.append(BenchRow("leg", f"pyelastica dt={h_sym:.3g}", float(np.median(py)) * 1e6,
-                             float(np.quantile(py, 0.99)) * 1e6, 1.0,
-                             {"note": "straight rod, equal area, PositionVerlet, gravity, clamped"}))
+        rows.append(
+            BenchRow(
+                "leg",
+                f"pyelastica dt={h_sym:.3g}",
+                float(np.median(py)) * 1e6,
+                float(np.quantile(py, 0.99)) * 1e6,
+                1.0,
+                {"note": "straight rod, equal area, PositionVerlet, gravity, clamped"},
+            )
+        )
 
     # closed loop: 25 s walk on the soft plant (composed with plant=cosserat), no logging
     loop_cfg = cfg
@@ -151,15 +178,28 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     stamps: list[float] = []
     sink = _StatsSink()
     start = time.perf_counter()
-    summary = run_closed_loop(loop_cfg, loop_cfg.scenarios["baseline"], 25.0, sink,
-                              lambda done, total: stamps.append(time.perf_counter()))
+    summary = run_closed_loop(
+        loop_cfg, loop_cfg.scenarios["baseline"], 25.0, sink, lambda done, total: stamps.append(time.perf_counter())
+    )
     wall = time.perf_counter() - start
     per_step = np.diff(np.concatenate([[start], stamps]))
     mpc = np.asarray(sink.mpc_s)
-    rows.append(BenchRow("closed_loop", f"walk 25 s cosserat + {loop_cfg.solver.name}", float(np.median(per_step)) * 1e6,
-                         float(np.quantile(per_step, 0.99)) * 1e6, summary.sim_time_s / wall,
-                         {"wall_s": wall, "real_time_factor": summary.sim_time_s / wall, "warmup_s": warmup,
-                          "mpc_share": float(mpc.sum() / wall), "mpc_median_us": float(np.median(mpc)) * 1e6,
-                          "plant_dt_s": loop_cfg.sim.dt, "integrator": loop_cfg.plant.integrator}))
+    rows.append(
+        BenchRow(
+            "closed_loop",
+            f"walk 25 s cosserat + {loop_cfg.solver.name}",
+            float(np.median(per_step)) * 1e6,
+            float(np.quantile(per_step, 0.99)) * 1e6,
+            summary.sim_time_s / wall,
+            {
+                "wall_s": wall,
+                "real_time_factor": summary.sim_time_s / wall,
+                "warmup_s": warmup,
+                "mpc_share": float(mpc.sum() / wall),
+                "mpc_median_us": float(np.median(mpc)) * 1e6,
+                "plant_dt_s": loop_cfg.sim.dt,
+                "integrator": loop_cfg.plant.integrator,
+            },
+        )
+    )
     return rows
-

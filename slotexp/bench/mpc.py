@@ -22,11 +22,13 @@ from pathlib import Path
 import numpy as np
 from omegaconf import OmegaConf
 
-from ..backends import BACKENDS, single_threaded_blas
+from ..backends import BACKENDS, make_mpc
+from ..backends._base import single_threaded_blas
 from ..config import SlotConfig, SolverConfig
-from ..controller import Controller
+from ..controllers.paper import PaperController
 from ..figures.style import new_figure, save
-from ..plant import IdealPlant, nominal_state
+from ..plants import ForceCommand, nominal_state
+from ..plants.ideal import IdealPlant
 from ..robot import build_robot
 from . import BenchRow, register
 
@@ -35,7 +37,7 @@ DURATION_S = 10.0
 PASSES = 2
 BASELINE = "scs"  # the paper's stack: CVXPY + SCS
 REFERENCE = "clarabel"  # objective agreement is reported against it
-CONF_SOLVER = Path(__file__).resolve().parents[2] / "conf" / "solver"
+CONF_SOLVER = Path(__file__).resolve().parents[1] / "conf" / "solver"
 
 
 def record_problems(cfg: SlotConfig, scenario: str = SCENARIO, duration: float = DURATION_S) -> list[tuple]:
@@ -43,7 +45,7 @@ def record_problems(cfg: SlotConfig, scenario: str = SCENARIO, duration: float =
     robot = build_robot(cfg.robot)
     sc = cfg.scenarios[scenario]
     plant = IdealPlant(robot, nominal_state(robot) + np.asarray(sc.offset.as_array()), cfg.sim.gravity, cfg.sim.dt)
-    ctrl = Controller(cfg, robot)
+    ctrl = PaperController(cfg, robot)
     impulses = sorted(sc.impulses, key=lambda imp: imp.t)
     problems = []
     for k in range(int(round(duration * cfg.mpc.rate_hz))):
@@ -54,7 +56,7 @@ def record_problems(cfg: SlotConfig, scenario: str = SCENARIO, duration: float =
         while impulses and impulses[0].t < t + ctrl.period:
             imp = impulses.pop(0)
             plant.apply_impulse(np.asarray(imp.linear), np.asarray(imp.angular))
-        plant.step(step.forces, ctrl.period)
+        plant.step(ForceCommand(step.forces), ctrl.period)
     return problems
 
 
@@ -68,7 +70,6 @@ def solver_settings(name: str, cfg: SlotConfig) -> SolverConfig:
 
 def time_backend(name: str, cfg: SlotConfig, problems: list[tuple]) -> dict:
     """Construct, solve once (setup, excluded), then time every remaining step."""
-    from ..mpc import make_mpc
 
     robot = build_robot(cfg.robot)
     solver = solver_settings(name, cfg)
@@ -85,20 +86,26 @@ def time_backend(name: str, cfg: SlotConfig, problems: list[tuple]) -> dict:
         iters.append(sol.iterations)
         objective.append(sol.objective)
         failures += int(not sol.success)
-    return {"times": np.asarray(times), "iterations": np.asarray(iters), "objective": np.asarray(objective),
-            "failures": failures, "construct_s": t1 - t0, "first_solve_s": t2 - t1}
+    return {
+        "times": np.asarray(times),
+        "iterations": np.asarray(iters),
+        "objective": np.asarray(objective),
+        "failures": failures,
+        "construct_s": t1 - t0,
+        "first_solve_s": t2 - t1,
+    }
 
 
-@register("mpc")
+@register()
 def bench_mpc(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     """Median / p99 / max update time, iterations and setup of every backend (see the module docstring)."""
     single_threaded_blas()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     # recorded with the reference backend, so no backend under test is warmed up by the recording
     problems = record_problems(dataclasses.replace(cfg, solver=solver_settings(REFERENCE, cfg)))
-    runs: dict[str, list[dict]] = {name: [] for name in BACKENDS}
+    runs: dict[str, list[dict]] = {name: [] for name in BACKENDS.names()}
     for _ in range(PASSES):  # passes interleave the backends, so slow drifts of the machine hit all alike
-        for name in BACKENDS:
+        for name in BACKENDS.names():
             runs[name].append(time_backend(name, cfg, problems))
     merged = {name: _merge(r) for name, r in runs.items()}
     base = float(np.median(merged[BASELINE]["times"]))
@@ -108,16 +115,31 @@ def bench_mpc(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
         t = m["times"] * 1e6
         med = float(np.median(t))
         rel = np.abs(m["objective"] - ref_obj) / np.abs(ref_obj)
-        rows.append(BenchRow(
-            component="mpc", variant=name, median_us=med, p99_us=float(np.percentile(t, 99)),
-            ratio_vs_baseline=base * 1e6 / med,
-            extra={"max_us": float(t.max()), "mean_us": float(t.mean()),
-                   "iterations_median": float(np.median(m["iterations"])),
-                   "iterations_max": int(m["iterations"].max()), "failed_steps": int(m["failures"]),
-                   "steps_timed": int(t.size), "construct_s": m["construct_s"], "first_solve_s": m["first_solve_s"],
-                   "max_rel_objective_vs_clarabel": float(np.nanmax(rel)),
-                   "scenario": SCENARIO, "duration_s": DURATION_S, "passes": PASSES, "horizon": cfg.mpc.horizon,
-                   "load_average_1min_at_start": load}))
+        rows.append(
+            BenchRow(
+                component="mpc",
+                variant=name,
+                median_us=med,
+                p99_us=float(np.percentile(t, 99)),
+                ratio_vs_baseline=base * 1e6 / med,
+                extra={
+                    "max_us": float(t.max()),
+                    "mean_us": float(t.mean()),
+                    "iterations_median": float(np.median(m["iterations"])),
+                    "iterations_max": int(m["iterations"].max()),
+                    "failed_steps": int(m["failures"]),
+                    "steps_timed": int(t.size),
+                    "construct_s": m["construct_s"],
+                    "first_solve_s": m["first_solve_s"],
+                    "max_rel_objective_vs_clarabel": float(np.nanmax(rel)),
+                    "scenario": SCENARIO,
+                    "duration_s": DURATION_S,
+                    "passes": PASSES,
+                    "horizon": cfg.mpc.horizon,
+                    "load_average_1min_at_start": load,
+                },
+            )
+        )
     _plot(merged, out_dir / "mpc_update_times.png", cfg.mpc.horizon)
     _write_table(rows, out_dir / "bench_mpc.md")
     _write_csv(rows, out_dir / "bench_mpc.csv")  # `make results` copies these three into results/bench_mpc/
@@ -125,12 +147,14 @@ def bench_mpc(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
 
 
 def _merge(passes: list[dict]) -> dict:
-    return {"times": np.concatenate([p["times"] for p in passes]),
-            "iterations": np.concatenate([p["iterations"] for p in passes]),
-            "objective": np.concatenate([p["objective"] for p in passes]),
-            "failures": sum(p["failures"] for p in passes),
-            "construct_s": float(np.median([p["construct_s"] for p in passes])),
-            "first_solve_s": float(max(p["first_solve_s"] for p in passes))}
+    return {
+        "times": np.concatenate([p["times"] for p in passes]),
+        "iterations": np.concatenate([p["iterations"] for p in passes]),
+        "objective": np.concatenate([p["objective"] for p in passes]),
+        "failures": sum(p["failures"] for p in passes),
+        "construct_s": float(np.median([p["construct_s"] for p in passes])),
+        "first_solve_s": float(max(p["first_solve_s"] for p in passes)),
+    }
 
 
 def _plot(merged: dict, path: Path, horizon: int) -> None:
@@ -151,27 +175,48 @@ def _plot(merged: dict, path: Path, horizon: int) -> None:
 
 
 def _write_table(rows: list[BenchRow], path: Path) -> None:
-    lines = ["| backend | median (ms) | p99 (ms) | max (ms) | x faster than SCS | iterations median / max | "
-             "failed steps | first solve (s) | max rel. objective vs Clarabel |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| backend | median (ms) | p99 (ms) | max (ms) | x faster than SCS | iterations median / max | "
+        "failed steps | first solve (s) | max rel. objective vs Clarabel |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         e = r.extra
-        lines.append(f"| {r.variant} | {r.median_us / 1e3:.3f} | {r.p99_us / 1e3:.3f} | {e['max_us'] / 1e3:.3f} | "
-                     f"{r.ratio_vs_baseline:.1f} | {e['iterations_median']:g} / {e['iterations_max']} | "
-                     f"{e['failed_steps']} | {e['first_solve_s']:.3f} | {e['max_rel_objective_vs_clarabel']:.1e} |")
+        lines.append(
+            f"| {r.variant} | {r.median_us / 1e3:.3f} | {r.p99_us / 1e3:.3f} | {e['max_us'] / 1e3:.3f} | "
+            f"{r.ratio_vs_baseline:.1f} | {e['iterations_median']:g} / {e['iterations_max']} | "
+            f"{e['failed_steps']} | {e['first_solve_s']:.3f} | {e['max_rel_objective_vs_clarabel']:.1e} |"
+        )
     load = rows[0].extra["load_average_1min_at_start"]
-    note = (f"`slot bench mpc`: {SCENARIO} scenario, {DURATION_S:g} s closed loop on the ideal plant, "
-            f"{rows[0].extra['steps_timed']} timed steps per backend ({PASSES} passes, first solve of each pass "
-            f"excluded), one process, BLAS pinned to one thread; 1-min load average at start {load:.2f}.\n\n")
+    note = (
+        f"`slot bench mpc`: {SCENARIO} scenario, {DURATION_S:g} s closed loop on the ideal plant, "
+        f"{rows[0].extra['steps_timed']} timed steps per backend ({PASSES} passes, first solve of each pass "
+        f"excluded), one process, BLAS pinned to one thread; 1-min load average at start {load:.2f}.\n\n"
+    )
     path.write_text(note + "\n".join(lines) + "\n")
 
 
 def _write_csv(rows: list[BenchRow], path: Path) -> None:
-    cols = ["variant", "median_us", "p99_us", "max_us", "ratio_vs_baseline", "iterations_median", "iterations_max",
-            "failed_steps", "first_solve_s", "max_rel_objective_vs_clarabel"]
+    cols = [
+        "variant",
+        "median_us",
+        "p99_us",
+        "max_us",
+        "ratio_vs_baseline",
+        "iterations_median",
+        "iterations_max",
+        "failed_steps",
+        "first_solve_s",
+        "max_rel_objective_vs_clarabel",
+    ]
     out = [",".join(cols)]
     for r in rows:
-        vals = {"variant": r.variant, "median_us": r.median_us, "p99_us": r.p99_us,
-                "ratio_vs_baseline": r.ratio_vs_baseline, **r.extra}
+        vals = {
+            "variant": r.variant,
+            "median_us": r.median_us,
+            "p99_us": r.p99_us,
+            "ratio_vs_baseline": r.ratio_vs_baseline,
+            **r.extra,
+        }
         out.append(",".join(str(vals[c]) if isinstance(vals[c], str) else f"{vals[c]:.6g}" for c in cols))
     path.write_text("\n".join(out) + "\n")

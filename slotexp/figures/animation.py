@@ -18,8 +18,16 @@ def _box(position: np.ndarray, quat: np.ndarray, size: np.ndarray) -> np.ndarray
     return position + corners @ quat_to_rot(quat).T
 
 
-def animate(t: np.ndarray, positions: np.ndarray, quats: np.ndarray, legs: dict[str, np.ndarray],
-            torso_size: np.ndarray, path: str | Path, fps: int = 10, title: str = "") -> Path:
+def animate(
+    t: np.ndarray,
+    positions: np.ndarray,
+    quats: np.ndarray,
+    legs: dict[str, np.ndarray],
+    torso_size: np.ndarray,
+    path: str | Path,
+    fps: int = 10,
+    title: str = "",
+) -> Path:
     """``legs[name]`` is (frames, N, 3) in the world frame; one frame per entry of ``t``."""
     fig = new_figure(9, 4.2)
     side, top = fig.subplots(1, 2)
@@ -42,7 +50,7 @@ def animate(t: np.ndarray, positions: np.ndarray, quats: np.ndarray, legs: dict[
     box_top = [top.plot([], [], color="0.2", lw=1)[0] for _ in BOX_EDGES]
     leg_side = {n: side.plot([], [], "-", lw=2, color=LEG_COLOURS.get(n, "m"))[0] for n in legs}
     leg_top = {n: top.plot([], [], "-", lw=2, color=LEG_COLOURS.get(n, "m"), label=n)[0] for n in legs}
-    trail, = top.plot([], [], ":", color="0.5", lw=1)
+    (trail,) = top.plot([], [], ":", color="0.5", lw=1)
     top.legend(fontsize=7, loc="upper left")
     label = fig.suptitle("", fontsize=9)
 
@@ -83,11 +91,24 @@ def animate_log(log_path: str | Path, out: str | Path, seconds: float = 8.0, fps
     step = max(1, int(round(1.0 / (fps * (t[1] - t[0]))))) if len(t) > 1 else 1
     idx = np.arange(0, len(t), step)
     idx = idx[t[idx] <= t[0] + seconds]
-    legs = {n: shape[[f"{n}.{i}.{j}" for i in range(n_nodes) for j in range(3)]].to_numpy(float)[idx]
-            .reshape(len(idx), n_nodes, 3) for n in names}
+    legs = {
+        n: shape[[f"{n}.{i}.{j}" for i in range(n_nodes) for j in range(3)]]
+        .to_numpy(float)[idx]
+        .reshape(len(idx), n_nodes, 3)
+        for n in names
+    }
     pos = pose[["pose.position.x", "pose.position.y", "pose.position.z"]].to_numpy(float)[idx]
-    quat = pose[["pose.orientation.w", "pose.orientation.x", "pose.orientation.y",
-                 "pose.orientation.z"]].to_numpy(float)[idx]
+    quat = pose[["pose.orientation.w", "pose.orientation.x", "pose.orientation.y", "pose.orientation.z"]].to_numpy(
+        float
+    )[idx]
     run = log.metadata.get("run", {})
-    return animate(t[idx], pos, quat, legs, np.asarray(conf["robot"]["torso"]["size"], dtype=float), out, fps,
-                   title=f"{run.get('gait', '')} gait, {run.get('plant', '')} plant")
+    return animate(
+        t[idx],
+        pos,
+        quat,
+        legs,
+        np.asarray(conf["robot"]["torso"]["size"], dtype=float),
+        out,
+        fps,
+        title=f"{run.get('gait', '')} gait, {run.get('plant', '')} plant",
+    )

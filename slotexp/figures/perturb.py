@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 from matplotlib.colors import ListedColormap
@@ -26,14 +26,15 @@ def constraint_status(run: RunData, tol: float = VIOLATION_TOL_N) -> np.ndarray:
     return status
 
 
-def plot_costs(runs: Sequence[RunData], path: str | Path, floor: float = 1e-8) -> Path:
+def plot_costs(
+    runs: Sequence[RunData], path: str | Path, floor: float = 1e-8, ylabel: str = r"stage cost $10^3\,e^\top Q e$"
+) -> Path:
     fig = new_figure(8, 4.5)
     ax = fig.add_subplot()
     for run in runs:
-        ax.semilogy(run.t, np.maximum(run.cost, floor), label=run.name, lw=1.2,
-                    ls="--" if run.name == "roll" else "-")
+        ax.semilogy(run.t, np.maximum(run.cost, floor), label=run.name, lw=1.2, ls="--" if run.name == "roll" else "-")
     ax.set_xlabel("time [s]")
-    ax.set_ylabel(r"stage cost $10^3\,e^\top Q e$")
+    ax.set_ylabel(ylabel)
     ax.set_title("MPC cost under perturbations, walk gait (cf. paper Fig. 7)")
     ax.grid(True, which="major", alpha=0.3)
     ax.legend(ncol=4, fontsize=8)
@@ -48,14 +49,21 @@ def plot_dcm(runs: Sequence[RunData], path: str | Path, title: str = "Dynamic Co
     for ax, run in zip(axes, runs):
         status = constraint_status(run)
         t0, t1 = run.t[0], run.t[-1] + (run.t[1] - run.t[0] if len(run.t) > 1 else 0)
-        ax.imshow(status, aspect="auto", cmap=cmap, vmin=0, vmax=2, interpolation="nearest",
-                  extent=(t0, t1, len(CONSTRAINT_GROUPS) - 0.5, -0.5))
+        ax.imshow(
+            status,
+            aspect="auto",
+            cmap=cmap,
+            vmin=0,
+            vmax=2,
+            interpolation="nearest",
+            extent=(t0, t1, len(CONSTRAINT_GROUPS) - 0.5, -0.5),
+        )
         ax.set_yticks(range(len(CONSTRAINT_GROUPS)), CONSTRAINT_GROUPS, fontsize=7)
         n_bad = int((status != FEASIBLE).any(axis=0).sum())
         ax.set_ylabel(run.name, rotation=0, ha="right", va="center", fontsize=9)
         ax.text(1.005, 0.5, f"{n_bad} bad", transform=ax.transAxes, fontsize=7, va="center")
     axes[-1].set_xlabel("time [s]")
-    handles = [Patch(color=c, label=l) for c, l in zip(DCM_COLOURS, ["feasible", "violated", "fallback"])]
+    handles = [Patch(color=c, label=name) for c, name in zip(DCM_COLOURS, ["feasible", "violated", "fallback"])]
     fig.legend(handles=handles, loc="outside lower center", ncol=3, fontsize=8)
     fig.suptitle(f"{title} (cf. paper Fig. 8)", fontsize=10)
     return save(fig, path)

@@ -46,17 +46,20 @@ def plot_path(run: RunData, legs: list[str], path: str | Path, snapshot_s: float
     top.set_ylabel("y [m]")
     top.grid(alpha=0.3)
     top.legend(fontsize=8, loc="best")
-    top.set_title(f"path (grey: legs, circles: contracting legs; every {snapshot_s:g} s)", fontsize=9)
+    top.set_title(f"path (grey: legs, circles: legs in swing; every {snapshot_s:g} s)", fontsize=9)
     dt = run.t[1] - run.t[0] if len(run.t) > 1 else 1.0
     for i, leg in enumerate(legs):
         swing = ~run.stance[:, i]
         starts = np.flatnonzero(np.diff(np.concatenate([[0], swing.astype(int)])) == 1)
         ends = np.flatnonzero(np.diff(np.concatenate([swing.astype(int), [0]])) == -1)
-        bottom.broken_barh([(run.t[a], run.t[b] - run.t[a] + dt) for a, b in zip(starts, ends)], (i - 0.4, 0.8),
-                           color=LEG_COLOURS.get(leg, "m"))
+        bottom.broken_barh(
+            [(run.t[a], run.t[b] - run.t[a] + dt) for a, b in zip(starts, ends)],
+            (i - 0.4, 0.8),
+            color=LEG_COLOURS.get(leg, "m"),
+        )
     bottom.set_yticks(range(len(legs)), legs)
     bottom.set_xlabel("time [s]")
-    bottom.set_title("gait sequence (bars: contracting / swing)", fontsize=9)
+    bottom.set_title("gait sequence the MPC plans with (bars: swing, the low-friction phase)", fontsize=9)
     bottom.set_xlim(run.t[0], run.t[-1] + dt)
     fig.suptitle(f"{run.run.get('gait', '?')} gait: desired vs simulated path (cf. paper Fig. 6)", fontsize=10)
     return save(fig, path)

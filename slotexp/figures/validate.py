@@ -19,8 +19,14 @@ _AXES = ("x", "y", "z")
 _CANDIDATE_COLOUR = "tab:orange"
 
 
-def plot_overlay(times: np.ndarray, reference: dict[str, np.ndarray], candidate: dict[str, np.ndarray],
-                 path: str | Path, *, title: str = "") -> Path:
+def plot_overlay(
+    times: np.ndarray,
+    reference: dict[str, np.ndarray],
+    candidate: dict[str, np.ndarray],
+    path: str | Path,
+    *,
+    title: str = "",
+) -> Path:
     """Save a marker-by-axis grid (rows: markers, columns: x, y, z) as a 150-dpi PNG.
 
     ``times`` is (n,) seconds and each dict maps a marker to an (n, 3) array in metres,
@@ -33,7 +39,9 @@ def plot_overlay(times: np.ndarray, reference: dict[str, np.ndarray], candidate:
         raise ValueError(f"times must be 1-D seconds, got shape {t.shape}")
     names = [m for m in reference if m in candidate]
     if not names:
-        raise ValueError(f"no marker in both reference {sorted(reference)} and candidate {sorted(candidate)}; nothing to plot")
+        raise ValueError(
+            f"no marker in both reference {sorted(reference)} and candidate {sorted(candidate)}; nothing to plot"
+        )
     ref = {m: np.asarray(reference[m], dtype=float) for m in names}
     cand = {m: np.asarray(candidate[m], dtype=float) for m in names}
     for label, arrays in (("reference", ref), ("candidate", cand)):

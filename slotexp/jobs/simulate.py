@@ -3,15 +3,30 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..config import SlotConfig
-from ..figures.simulate import plot_com, plot_path
+from ..config import SlotConfig, check_scenario, num_field
 from ..metrics import rmse
 from ..runlog import RunData, find_logs, load_run
-from .logged import git_commit, run_logged
+from . import EXPERIMENTS, Experiment
+from ._logged import git_commit, run_logged
+
+
+@dataclass
+class SimulateExperiment:
+    """Closed-loop run of one gait (paper Figs. 4 and 6)."""
+
+    name: str = "simulate"
+    duration: float = num_field(10.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
+    scenario: str = "baseline"
+    drift_distance: float = num_field(0.8, lo=0.0, lo_open=True, unit="m")
+    measure_from_s: float = num_field(2.0, lo=0.0, unit="s")  # speed and heading are measured after this
+
+    def check(self, cfg: SlotConfig) -> None:
+        check_scenario(cfg, self.scenario, "experiment.scenario names")
 
 
 def lateral_drift(xy: np.ndarray, direction: np.ndarray, distance: float) -> tuple[float, float]:
@@ -29,13 +44,33 @@ def lateral_drift(xy: np.ndarray, direction: np.ndarray, distance: float) -> tup
     return float(np.max(np.abs(rel[mask] @ n))), float(min(covered[-1], distance))
 
 
-def metrics(run: RunData, velocity: list[float], drift_distance: float) -> dict:
+def metrics(run: RunData, velocity: list[float], drift_distance: float, measure_from_s: float = 2.0) -> dict:
+    """Tracking metrics (results/README.md, "Definitions"). Speed, heading and the speed error are
+    the mean over t >= ``measure_from_s`` (net displacement over time); the commanded direction is
+    the reference's at the start (the world frame, the robot starting at zero yaw)."""
     xy, xy_ref = run.x[:, 3:5], run.x_ref[:, 3:5]
     direction = np.asarray(velocity, dtype=float)
-    if np.linalg.norm(direction) < 1e-12:
+    commanded = float(np.linalg.norm(direction))
+    if commanded < 1e-12:
         direction = np.array([1.0, 0.0])
     drift, covered = lateral_drift(xy, direction, drift_distance)
+    start = int(np.searchsorted(run.t, run.t[0] + measure_from_s))
+    start = min(start, len(run.t) - 2)
+    span = float(run.t[-1] - run.t[start])
+    mean_v = (xy[-1] - xy[start]) / span
+    d = direction / np.linalg.norm(direction)
+    along = float(mean_v @ d)
+    heading_error = float(np.degrees(np.arctan2(mean_v[1], mean_v[0]) - np.arctan2(d[1], d[0])))
+    heading_error = (heading_error + 180.0) % 360.0 - 180.0
+    yaw_drift = float(np.degrees(run.x[-1, 2] - run.x_ref[-1, 2]))
     return {
+        "speed_mps": float(np.linalg.norm(mean_v)),
+        "speed_along_mps": along,
+        "speed_error_fraction": (along - commanded) / commanded if commanded > 0 else float("nan"),
+        "heading_error_deg": heading_error if commanded > 0 else float("nan"),
+        "yaw_drift_deg": yaw_drift,
+        "lateral_drift_per_m": drift / covered if covered > 0 else float("nan"),
+        "measured_from_s": float(run.t[start]),
         "gait": run.run.get("gait"),
         "duration_s": float(run.t[-1] - run.t[0]),
         "com_rmse_x_m": rmse(run.x[:, 3], run.x_ref[:, 3]),
@@ -61,14 +96,34 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
 
     with Progress(console=Console(stderr=True), transient=False) as bar:
         task = bar.add_task(f"{cfg.gait.name:<10}", total=int(round(exp.duration * cfg.mpc.rate_hz)))
-        run_logged(cfg, scenario, exp.duration, log, resolved_yaml, git_commit(),
-                   lambda done, total: bar.update(task, completed=done))
-    report(out_dir, list(cfg.gait.velocity), exp.drift_distance, list(cfg.robot.leg.names))
+        run_logged(
+            cfg,
+            scenario,
+            exp.duration,
+            log,
+            resolved_yaml,
+            git_commit(),
+            lambda done, total: bar.update(task, completed=done),
+        )
+    report(out_dir, cfg)
 
 
-def report(out_dir: Path, velocity: list[float], drift_distance: float, legs: list[str]) -> dict:
+def report(out_dir: Path, cfg: SlotConfig) -> dict:
+    """Metrics, Figs. 4 and 6 (and the walk animation of a soft-leg run) from the log alone."""
+    exp = cfg.experiment
+    return write_report(
+        out_dir, list(cfg.gait.velocity), exp.drift_distance, list(cfg.robot.leg.names), exp.measure_from_s
+    )
+
+
+def write_report(
+    out_dir: Path, velocity: list[float], drift_distance: float, legs: list[str], measure_from_s: float = 2.0
+) -> dict:
+    """:func:`report` with its settings given (hardware runs share it)."""
+    from ..figures.simulate import plot_com, plot_path
+
     run = load_run(find_logs(out_dir)[0])
-    result = metrics(run, velocity, drift_distance)
+    result = metrics(run, velocity, drift_distance, measure_from_s)
     (out_dir / "metrics.json").write_text(json.dumps(result, indent=2))
     plot_com(run, out_dir / "fig4_com.png")
     plot_path(run, legs, out_dir / "fig6_path.png")
@@ -76,3 +131,6 @@ def report(out_dir: Path, velocity: list[float], drift_distance: float, legs: li
 
     animate_log(run.path, out_dir / f"{run.run.get('gait', 'run')}.gif")  # soft-leg runs only
     return result
+
+
+EXPERIMENTS.add("simulate", Experiment(SimulateExperiment, run, report))

@@ -9,18 +9,40 @@ resampling are those of :mod:`slotexp.compare`.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..compare import Alignment, Trajectory, align, compare, load_marker_csv, trajectory_from_frame
-from ..config import SlotConfig
-from ..errors import UserError
-from ..figures.validate import plot_overlay
+from ..config import SlotConfig, check_scenario, choice_field, num_field
+from ..errors import ConfigError, UserError
 from ..record import read_log
 from ..runlog import find_logs
 from ..tables import to_markdown
-from .logged import git_commit, run_logged
+from . import EXPERIMENTS, Experiment
+from ._logged import git_commit, run_logged
 
 INPUTS_FILE = "validate_inputs.json"
+
+
+@dataclass
+class ValidateExperiment:
+    """Compare a trajectory with a reference (another run's log, or a marker CSV)."""
+
+    name: str = "validate"
+    reference: str | None = None
+    candidate: str | None = None  # None: simulate the current config
+    duration: float = num_field(10.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
+    scenario: str = "baseline"
+    align: str = choice_field("start", "start", "absolute")
+    offset_s: float = 0.0
+    markers: list[str] | None = None
+
+    def check(self, cfg: SlotConfig) -> None:
+        check_scenario(cfg, self.scenario, "experiment.scenario names")
+        if not self.reference:
+            raise ConfigError(
+                "experiment.reference is not set: pass experiment.reference=<run dir, .mcap log or marker .csv>"
+            )
 
 
 def load_trajectory(spec: str) -> Trajectory:
@@ -49,34 +71,66 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         log = out_dir / "logs" / f"{cfg.gait.name}.mcap"
         run_logged(cfg, cfg.scenarios[exp.scenario], exp.duration, log, resolved_yaml, git_commit())
         candidate_spec = str(log)
-    inputs = {"reference": str(Path(exp.reference).expanduser().resolve()),
-              "candidate": str(Path(candidate_spec).expanduser().resolve()),
-              "align": exp.align, "offset_s": exp.offset_s, "markers": exp.markers}
+    inputs = {
+        "reference": str(Path(exp.reference).expanduser().resolve()),
+        "candidate": str(Path(candidate_spec).expanduser().resolve()),
+        "align": exp.align,
+        "offset_s": exp.offset_s,
+        "markers": exp.markers,
+    }
     (out_dir / INPUTS_FILE).write_text(json.dumps(inputs, indent=2))
     rebuild(out_dir)
 
 
-def rebuild(out_dir: Path) -> None:
-    """Redo the comparison from the inputs a validate run recorded."""
+def rebuild(out_dir: Path, cfg: SlotConfig | None = None) -> None:
+    """Redo the comparison from the inputs a validate run recorded (its config is not needed)."""
     inputs = json.loads((out_dir / INPUTS_FILE).read_text())
-    report(out_dir, load_trajectory(inputs["reference"]), load_trajectory(inputs["candidate"]),
-           Alignment(inputs["align"], float(inputs["offset_s"])), inputs["markers"], inputs["reference"],
-           inputs["candidate"])
+    report(
+        out_dir,
+        load_trajectory(inputs["reference"]),
+        load_trajectory(inputs["candidate"]),
+        Alignment(inputs["align"], float(inputs["offset_s"])),
+        inputs["markers"],
+        inputs["reference"],
+        inputs["candidate"],
+    )
 
 
-def report(out_dir: Path, reference: Trajectory, candidate: Trajectory, alignment: Alignment,
-           markers: list[str] | None, reference_name: str, candidate_name: str) -> None:
+def report(
+    out_dir: Path,
+    reference: Trajectory,
+    candidate: Trajectory,
+    alignment: Alignment,
+    markers: list[str] | None,
+    reference_name: str,
+    candidate_name: str,
+) -> None:
+    from ..figures.validate import plot_overlay
+
     table = compare(reference, candidate, alignment, markers)
     table.to_csv(out_dir / "validate.csv", index=False, float_format="%.6g")
-    header = (f"Reference: `{reference_name}`  \nCandidate: `{candidate_name}`  \n"
-              f"Alignment: {alignment.mode}, offset {alignment.offset_s:g} s\n\n")
+    header = (
+        f"Reference: `{reference_name}`  \nCandidate: `{candidate_name}`  \n"
+        f"Alignment: {alignment.mode}, offset {alignment.offset_s:g} s\n\n"
+    )
     (out_dir / "validate.md").write_text(header + to_markdown(table))
     times, ref, cand = align(reference, candidate, alignment)
     if markers:
         ref = {m: ref[m] for m in markers}
         cand = {m: cand[m] for m in markers}
     plot_overlay(times, ref, cand, out_dir / "fig_validate.png", title="candidate vs reference")
-    (out_dir / "metrics.json").write_text(json.dumps({
-        "reference": reference_name, "candidate": candidate_name,
-        "alignment": {"mode": alignment.mode, "offset_s": alignment.offset_s},
-        "rows": table.to_dict(orient="records")}, indent=2, default=float))
+    (out_dir / "metrics.json").write_text(
+        json.dumps(
+            {
+                "reference": reference_name,
+                "candidate": candidate_name,
+                "alignment": {"mode": alignment.mode, "offset_s": alignment.offset_s},
+                "rows": table.to_dict(orient="records"),
+            },
+            indent=2,
+            default=float,
+        )
+    )
+
+
+EXPERIMENTS.add("validate", Experiment(ValidateExperiment, run, rebuild))

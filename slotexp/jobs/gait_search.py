@@ -1,0 +1,364 @@
+"""Experiment ``gait_search``: CMA-ES over periodic tendon schedules, on the soft plant itself.
+
+For each body-frame heading in ``experiment.headings`` (and turning in place with
+``experiment.turn``) it searches a primitive of the style ``experiment.style``
+(:mod:`slotexp.locomotion.search`), every candidate simulated on the two-way coupled
+soft plant at ``sim.dt`` (:mod:`slotexp.locomotion.openloop`), candidates evaluated
+in parallel processes (``experiment.n_jobs``, every core by default), seeded. The
+best primitive of each heading and its mirror images (the torso is symmetric about
+its x and y axes) are then run again for ``experiment.verify_duration`` seconds and
+what they measured (heading, speed, yaw rate) goes into the library.
+
+Writes ``library.yaml`` (the style's primitives: the current library's, with the
+searched headings and their mirrors replaced; ``make results`` installs it as
+``conf/library/default.yaml``), ``search.csv`` (every candidate), ``metrics.json``
+and the figures ``fig_gait_polar.png`` (best speed per heading) and
+``fig_search.png`` (cost per generation), all rebuilt by ``slot figures`` from
+``logs/gait_search.mcap``.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from ..config import GaitStyleConfig, PrimitiveConfig, SlotConfig, num_field
+from ..errors import ConfigError
+from ..locomotion.openloop import GaitMetrics, run_gait
+from ..locomotion.primitives import GaitStyle, Primitive
+from ..locomotion.search import cost, from_vector, search, to_vector
+from ..record import Recorder, read_log
+from . import EXPERIMENTS, Experiment
+from ._logged import git_commit, n_workers
+
+TURN = "turn"
+
+
+@dataclass
+class GaitSearchExperiment:
+    """Search gait primitives for headings (and turning) of one style of the gait library."""
+
+    name: str = "gait_search"
+    style: str = "walk"  # the library style searched (controller.library)
+    # deg, body frame, searched in this order: each starts from the nearest gait found so far
+    headings: list[float] = field(default_factory=lambda: [0.0, 90.0, 45.0, 60.0])
+    turn: bool = True  # also search turning in place (left; right by mirror)
+    free_phases: bool = True  # false: keep the starting primitive's phases
+    max_evals: int = num_field(300, lo=2, hi=100000, unit="candidates per heading")
+    popsize: int = num_field(12, lo=2, hi=1000, unit="")
+    sigma0: float = num_field(0.15, lo=0.0, lo_open=True, hi=1.0, unit="of the tendon range")  # a new heading
+    sigma_refine: float = num_field(0.04, lo=0.0, lo_open=True, hi=1.0, unit="of the tendon range")  # a known one
+    duration: float = num_field(5.0, lo=0.5, hi=600.0, unit="s")  # simulated per candidate
+    settle: float = num_field(1.0, lo=0.0, hi=600.0, unit="s")  # before the measured window
+    verify_duration: float = num_field(8.0, lo=0.5, hi=600.0, unit="s")  # the library's measurements
+    n_jobs: int = num_field(0, lo=0, unit="processes")  # 0 = one per core
+    seed: int = num_field(1, lo=0, unit="")
+
+    def check(self, cfg: SlotConfig) -> None:
+        if cfg.plant.name != "cosserat":
+            raise ConfigError("experiment=gait_search needs the soft legs: add plant=cosserat")
+        if self.style not in cfg.controller.library:
+            raise ConfigError(
+                f"experiment.style = {self.style!r} is not in the gait library: choose one of "
+                f"{', '.join(cfg.controller.library) or '(none)'} (conf/library/)"
+            )
+        if not self.headings and not self.turn:
+            raise ConfigError("nothing to search: give experiment.headings or experiment.turn=true")
+        if self.settle >= self.duration:
+            raise ConfigError(
+                f"experiment.settle = {self.settle:g} s leaves nothing of experiment.duration = "
+                f"{self.duration:g} s to measure: lower it"
+            )
+
+
+# --------------------------------------------------------------------------- evaluation in worker processes
+_WORKER: dict = {}
+
+
+def _init_worker(cfg: SlotConfig, style: GaitStyle) -> None:
+    _WORKER.update(cfg=cfg, style=style)
+
+
+def _evaluate(task: tuple[np.ndarray, float, float]) -> dict:
+    x, duration, settle = task
+    cfg, style = _WORKER["cfg"], _WORKER["style"]
+    prim = from_vector(x, cfg.robot.leg.tendon_max_deg)
+    top = cfg.robot.leg.tendon_max_deg
+    try:
+        return run_gait(
+            cfg, lambda t: prim.angles(style, style.frequency_hz * t, top), style.frequency_hz, duration, settle
+        ).as_dict()
+    except Exception as exc:  # a candidate that diverges is a bad candidate, not a failed search
+        return {"error": f"{type(exc).__name__}: {exc}"}
+
+
+def _style_of(cfg: SlotConfig, name: str) -> GaitStyle:
+    s = cfg.controller.library[name]
+    return GaitStyle(s.frequency_hz, s.duty, s.sharpness)
+
+
+def _primitives(cfg: GaitStyleConfig) -> list[Primitive]:
+    return [
+        Primitive(
+            p.name,
+            np.asarray(p.base_deg, float),
+            np.asarray(p.amplitude_deg, float),
+            np.asarray(p.phase, float),
+            p.heading_deg,
+            p.speed_mps,
+            p.yaw_rate_dps,
+        )
+        for p in cfg.primitives
+    ]
+
+
+def _start(prims: list[Primitive], target: float | str) -> Primitive:
+    """The search's starting point: the library's primitive nearest the target, or a quarter-turn
+    rotation of one (the legs' layout is nearly square-symmetric), whichever is nearer."""
+    if target == TURN:
+        turns = [p for p in prims if p.heading_deg is None and p.yaw_rate_dps > 0]
+        if turns:
+            return max(turns, key=lambda p: p.yaw_rate_dps)
+        # a wave running round the body (FL, RL, RR, FR a quarter cycle apart) turns it (DESIGN.md)
+        return Primitive("rotary", np.full(4, 60.0), np.full(4, 50.0), np.array([0.0, 0.25, 0.5, 0.75]))
+    candidates = _with_rotations(prims)
+    if candidates:
+        return min(candidates, key=lambda p: _distance(p, float(target)))
+    return Primitive("default", np.full(4, 60.0), np.full(4, 50.0), np.array([0.0, 0.25, 0.75, 0.5]))
+
+
+def _with_rotations(prims: list[Primitive]) -> list[Primitive]:
+    out = []
+    for p in (p for p in prims if p.heading_deg is not None):
+        for _ in range(4):
+            out.append(p)
+            p = p.rotated_left()
+    return out
+
+
+def _distance(p: Primitive, heading: float) -> float:
+    return abs((p.heading_deg - heading + 180.0) % 360.0 - 180.0)
+
+
+def _near(p: Primitive, target: float | str) -> bool:
+    """Whether ``p`` is already a gait for ``target`` (within 10 deg, or a left turn)."""
+    if target == TURN:
+        return p.heading_deg is None and p.yaw_rate_dps > 0
+    return p.heading_deg is not None and _distance(p, float(target)) < 10.0
+
+
+def _mirrors(prim: Primitive, target: float | str) -> list[Primitive]:
+    if target == TURN:
+        return [prim, prim.mirrored("x")]
+    images = [prim, prim.mirrored("x"), prim.mirrored("y"), prim.mirrored("x").mirrored("y")]
+    out: list[Primitive] = []
+    for image, heading in zip(images, _mirror_headings(float(target)), strict=True):
+        if all(abs((heading - h + 180.0) % 360.0 - 180.0) > 1.0 for h in (_nominal(o) for o in out)):
+            out.append(Primitive(image.name, image.base_deg, image.amplitude_deg, image.phase, heading))
+    return out
+
+
+def _mirror_headings(h: float) -> list[float]:
+    return [h, -h, 180.0 - h, h - 180.0]
+
+
+def _nominal(p: Primitive) -> float:
+    return float(p.heading_deg) if p.heading_deg is not None else float("nan")
+
+
+def _label(target: float | str) -> str:
+    return TURN if target == TURN else f"h{float(target):+06.1f}"
+
+
+def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    exp = cfg.experiment
+    style = _style_of(cfg, exp.style)
+    top = cfg.robot.leg.tendon_max_deg
+    current = _primitives(cfg.controller.library[exp.style])
+    # in the order given, each heading starting from the nearest gait found so far (or a quarter turn of one)
+    targets: list[float | str] = [float(h) for h in exp.headings] + ([TURN] if exp.turn else [])
+    (out_dir / "logs").mkdir(parents=True, exist_ok=True)
+    meta = {"config": {"yaml": resolved_yaml}, "run": {"experiment": "gait_search", "git_commit": git_commit()}}
+    workers = n_workers(exp.n_jobs, exp.popsize)
+    ctx = mp.get_context("spawn")  # numba state is not fork-safe
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    with (
+        Recorder(out_dir / "logs" / "gait_search.mcap", metadata=meta) as rec,
+        ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(cfg, style)) as pool,
+        Progress(*columns, console=Console(stderr=True), transient=False) as bar,
+    ):
+        written = 0  # candidates logged so far: the log's clock
+        for i, target in enumerate(targets):
+            task = bar.add_task(f"{_label(target):<8}", total=exp.max_evals + 1)
+            start = _start(current, target)
+            x0 = to_vector(start, top)
+            sigma = exp.sigma_refine if _near(start, target) else exp.sigma0
+            generation = 0
+
+            def evaluate(xs: list[np.ndarray], target: float | str = target, task=task) -> list[float]:
+                nonlocal written, generation
+                costs = []
+                for x, r in zip(xs, pool.map(_evaluate, [(x, exp.duration, exp.settle) for x in xs]), strict=True):
+                    costs.append(_cost(r, target))
+                    written += 1
+                    rec.write(
+                        "/search/candidate",
+                        float(written),
+                        {"target": _label(target), "generation": generation, "cost": costs[-1], "x": x, **_numeric(r)},
+                    )
+                generation += 1
+                bar.advance(task, len(xs))
+                return costs
+
+            best = search(
+                evaluate,
+                x0,
+                sigma0=sigma,
+                popsize=exp.popsize,
+                max_evals=exp.max_evals,
+                seed=exp.seed + 1000 * i,
+                fixed_phases=None if exp.free_phases else x0[8:].copy(),
+            )
+            prim = from_vector(best[1], top, f"{exp.style}_{_label(target)}")
+            found = Primitive(
+                prim.name,
+                prim.base_deg,
+                prim.amplitude_deg,
+                prim.phase,
+                None if target == TURN else float(target),
+                1.0,
+                1.0 if target == TURN else 0.0,
+            )
+            current = [p for p in current if not _near(p, target)] + [found]  # the next target starts from it
+            images = _mirrors(prim, target)
+            checks = list(pool.map(_evaluate, [(to_vector(p, top), exp.verify_duration, exp.settle) for p in images]))
+            for image, check in zip(images, checks, strict=True):
+                rec.write(
+                    "/search/verified",
+                    float(i),
+                    {
+                        "target": _label(target),
+                        "name": image.name,
+                        "nominal_heading_deg": _nominal(image),
+                        "base_deg": image.base_deg,
+                        "amplitude_deg": image.amplitude_deg,
+                        "phase": image.phase,
+                        **_numeric(check),
+                    },
+                )
+    report(out_dir, cfg)
+
+
+def _cost(result: dict, target: float | str) -> float:
+    if "error" in result:
+        return 1e6
+    return cost(GaitMetrics(**result), None if target == TURN else float(target))
+
+
+def _numeric(result: dict) -> dict:
+    return {k: v for k, v in result.items() if isinstance(v, (int, float))} | {"failed": "error" in result}
+
+
+# --------------------------------------------------------------------------- report
+def library_from_log(cfg: SlotConfig, verified: pd.DataFrame) -> GaitStyleConfig:
+    """The style's library: the current primitives, with every verified one replacing those near its heading."""
+    exp = cfg.experiment
+    style = cfg.controller.library[exp.style]
+    new: list[PrimitiveConfig] = []
+    for _, row in verified.iterrows():
+        if row.get("failed", False):
+            continue
+        prim = Primitive(
+            str(row["name"]),
+            *(np.array([row[f"{key}.{k}"] for k in range(4)]) for key in ("base_deg", "amplitude_deg", "phase")),
+        )
+        m = GaitMetrics(**{k: float(row[k]) for k in GaitMetrics.__dataclass_fields__})
+        turning = str(row["target"]) == TURN
+        new.append(
+            PrimitiveConfig(
+                name=prim.name,
+                heading_deg=None if turning else round(m.heading_deg, 2),
+                speed_mps=round(m.speed * 1e-3, 5) if not turning else 0.0,
+                yaw_rate_dps=round(m.yaw_rate_dps, 3),
+                base_deg=[round(float(v), 3) for v in prim.base_deg],
+                amplitude_deg=[round(float(v), 3) for v in prim.amplitude_deg],
+                phase=[round(float(v), 4) for v in prim.phase],
+            )
+        )
+    kept = []
+    for p in style.primitives:
+        replaced = any(
+            (p.heading_deg is None) == (q.heading_deg is None)
+            and (
+                p.heading_deg is None
+                and np.sign(p.yaw_rate_dps) == np.sign(q.yaw_rate_dps)
+                or p.heading_deg is not None
+                and abs((p.heading_deg - q.heading_deg + 180.0) % 360.0 - 180.0) < 10.0
+            )
+            for q in new
+        )
+        if not replaced:
+            kept.append(p)
+    return GaitStyleConfig(style.frequency_hz, style.duty, style.sharpness, kept + new)
+
+
+def report(out_dir: Path, cfg: SlotConfig) -> dict:
+    """Library, table of candidates, metrics and figures from ``logs/gait_search.mcap`` alone."""
+    from omegaconf import OmegaConf
+
+    from ..figures.gait_search import plot_polar, plot_search
+
+    exp = cfg.experiment
+    log = read_log(out_dir / "logs" / "gait_search.mcap")
+    candidates = log["/search/candidate"]
+    verified = log["/search/verified"] if "/search/verified" in log else pd.DataFrame()
+    candidates.drop(columns="t").to_csv(out_dir / "search.csv", index=False, float_format="%.6g")
+    library = library_from_log(cfg, verified)
+    text = yaml.safe_dump(
+        {exp.style: OmegaConf.to_container(OmegaConf.structured(library))},
+        default_flow_style=None,
+        sort_keys=False,
+        width=120,
+    )
+    (out_dir / "library.yaml").write_text(
+        "# @package controller.library\n# Written by `slot run experiment=gait_search` (style "
+        f"{exp.style}); measured at sim.dt = {cfg.sim.dt:g} s.\n" + text
+    )
+    best = {}
+    for target, group in candidates.groupby("target"):
+        row = group.loc[group["cost"].idxmin()]
+        best[str(target)] = {
+            "cost": float(row["cost"]),
+            "evaluations": int(len(group)),
+            "vx_mm_s": float(row["vx"]),
+            "vy_mm_s": float(row["vy"]),
+            "yaw_rate_dps": float(row["yaw_rate_dps"]),
+        }
+    result = {
+        "style": exp.style,
+        "sim_dt_s": cfg.sim.dt,
+        "best": best,
+        "verified": verified.drop(columns=[c for c in verified.columns if "." in c or c == "t"]).to_dict(
+            orient="records"
+        )
+        if len(verified)
+        else [],
+    }
+    (out_dir / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
+    plot_search(candidates, out_dir / "fig_search.png")
+    if len(verified):
+        plot_polar(verified, out_dir / "fig_gait_polar.png", exp.style)
+    return result
+
+
+EXPERIMENTS.add("gait_search", Experiment(GaitSearchExperiment, run, report))

@@ -1,0 +1,123 @@
+"""Gait primitives: one periodic tendon schedule per leg, on a phase clock shared by a gait style.
+
+Per leg i (order FL, RL, RR, FR), at phase psi = f t (cycles):
+
+    theta_i(psi) = clip(b_i + a_i w(psi + phi_i), 0, theta_max)      [deg]
+
+with w a smoothed square wave in [0, 1], high for the fraction ``duty`` of the
+cycle around psi = 0 and with edges as steep as ``sharpness`` makes them:
+
+    w(u) = (tanh(k (cos 2 pi u - cos pi d)) - lo) / (hi - lo),   lo, hi: its values at cos = -1, +1
+
+(small k: a sine; large k: a square). A leg presses harder while its tendon is
+high: that is its stance (it tends to stick), the low part its swing (it slides).
+A :class:`GaitStyle` fixes the clock and the waveform (f, d, k) for every primitive
+of the style, so primitives can be mixed leg by leg at one clock (:func:`mix`):
+the library steers by blending neighbouring directions and speeds up or slows
+down by mixing towards standing still.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+# mirror images of a gait: the torso is symmetric about its x and y axes
+MIRROR_X = (3, 2, 1, 0)  # about the body x axis: FL<->FR, RL<->RR (heading h -> -h, yaw rate -> -yaw rate)
+MIRROR_Y = (1, 0, 3, 2)  # about the body y axis: FL<->RL, FR<->RR (heading h -> 180 - h, yaw rate -> -yaw rate)
+# a quarter turn to the left: each leg does what the leg a quarter turn clockwise of it did (FL what FR did, ...).
+# The legs point out at 45 deg + k 90 deg, so this maps a gait for heading h to one for h + 90 up to the
+# torso's aspect ratio (125.5 x 85.5 mm): an approximate symmetry, good for starting a search.
+ROTATE_LEFT = (3, 0, 1, 2)
+
+
+@dataclass(frozen=True)
+class GaitStyle:
+    """The clock and waveform shared by every primitive of a style."""
+
+    frequency_hz: float
+    duty: float
+    sharpness: float
+
+    def wave(self, u: np.ndarray | float) -> np.ndarray:
+        """The waveform w(u) in [0, 1] at phase ``u`` (cycles)."""
+        c = math.cos(math.pi * self.duty)
+        lo = math.tanh(self.sharpness * (-1.0 - c))
+        hi = math.tanh(self.sharpness * (1.0 - c))
+        return (np.tanh(self.sharpness * (np.cos(2.0 * np.pi * np.asarray(u, dtype=float)) - c)) - lo) / (hi - lo)
+
+
+@dataclass(frozen=True)
+class Primitive:
+    """One periodic schedule of a style, with what it was measured to do on the plant."""
+
+    name: str
+    base_deg: np.ndarray  # (4,)
+    amplitude_deg: np.ndarray  # (4,)
+    phase: np.ndarray  # (4,) cycles
+    heading_deg: float | None = None  # direction of travel in the body frame; None: turning or standing
+    speed_mps: float = 0.0  # measured mean speed along ``heading_deg``
+    yaw_rate_dps: float = 0.0  # measured mean yaw rate
+
+    def angles(self, style: GaitStyle, psi: np.ndarray | float, top: float) -> np.ndarray:
+        """Tendon angles (..., 4) at phase(s) ``psi`` (cycles), clipped to [0, ``top``]."""
+        psi = np.asarray(psi, dtype=float)[..., None]
+        return np.clip(self.base_deg + self.amplitude_deg * style.wave(psi + self.phase), 0.0, top)
+
+    def mirrored(self, axis: str) -> Primitive:
+        """The mirror image about the body ``"x"`` or ``"y"`` axis (legs swapped, heading and turn reflected)."""
+        perm = list(MIRROR_X if axis == "x" else MIRROR_Y)
+        heading = None
+        if self.heading_deg is not None:
+            heading = -self.heading_deg if axis == "x" else 180.0 - self.heading_deg
+            heading = (heading + 180.0) % 360.0 - 180.0
+        return Primitive(
+            f"{self.name}_m{axis}",
+            self.base_deg[perm],
+            self.amplitude_deg[perm],
+            self.phase[perm],
+            heading,
+            self.speed_mps,
+            -self.yaw_rate_dps,
+        )
+
+    def rotated_left(self) -> Primitive:
+        """The same gait a quarter turn to the left (approximate: see ``ROTATE_LEFT``)."""
+        perm = list(ROTATE_LEFT)
+        heading = None if self.heading_deg is None else (self.heading_deg + 270.0) % 360.0 - 180.0
+        return Primitive(
+            f"{self.name}_r90",
+            self.base_deg[perm],
+            self.amplitude_deg[perm],
+            self.phase[perm],
+            heading,
+            self.speed_mps,
+            self.yaw_rate_dps,
+        )
+
+    @staticmethod
+    def still(name: str, angle_deg: float) -> Primitive:
+        """Standing: every tendon held at ``angle_deg``."""
+        return Primitive(name, np.full(4, angle_deg), np.zeros(4), np.zeros(4))
+
+
+def mix(style: GaitStyle, parts: list[tuple[float, Primitive]], psi: np.ndarray | float, top: float) -> np.ndarray:
+    """Tendon angles (..., 4) of the weighted mix ``sum w_j theta_j(psi)`` of primitives at one clock."""
+    out = 0.0
+    for weight, prim in parts:
+        if weight != 0.0:
+            out = out + weight * prim.angles(style, psi, top)
+    return np.clip(out, 0.0, top)
+
+
+def stance(
+    style: GaitStyle, parts: list[tuple[float, Primitive]], psi: np.ndarray, top: float, samples: int = 48
+) -> np.ndarray:
+    """Stance flags (len(psi), 4): legs whose tendon is at or above its mean over the cycle (pressing
+    harder than on average, so they tend to stick); a leg that hardly moves (< 1 deg) is always in stance."""
+    cycle = mix(style, parts, np.arange(samples) / samples, top)
+    mean = cycle.mean(axis=0)
+    still = np.ptp(cycle, axis=0) < 1.0
+    return (mix(style, parts, np.atleast_1d(psi), top) >= mean) | still
