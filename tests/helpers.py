@@ -20,6 +20,11 @@ SLOT_CMD = [str(SLOT)] if SLOT.exists() else [sys.executable, "-m", "slotexp.cli
 PLAN_TOL = 1e-4  # N, constraint tolerance of the CVXPY solutions
 
 
+def turned_off_after_on(torque_writes: list[int]) -> bool:
+    """The host turned a servo's torque on and, after the last time it did, off again (retries allowed)."""
+    return 1 in torque_writes and torque_writes[-1] == 0
+
+
 def load(*overrides: str) -> SlotConfig:
     register_schemas()
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):

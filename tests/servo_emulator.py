@@ -297,6 +297,15 @@ class ServoEmulator:
                 if (servo_id is None or w.servo_id == servo_id) and w.address <= 119 and w.address + len(w.data) > 116
             ]
 
+    def torque_writes(self) -> dict[int, list[int]]:
+        """Per servo, the values the host wrote to Torque Enable (64), accepted, in order (not the watchdog's)."""
+        with self.lock:
+            out: dict[int, list[int]] = {i: [] for i in self.servos}
+            for w in self.writes:
+                if w.accepted and w.address <= 64 < w.address + len(w.data):
+                    out[w.servo_id].append(w.data[64 - w.address])
+            return out
+
     def torque(self) -> dict[int, int]:
         with self.lock:
             return {i: s.get("torque_enable") for i, s in self.servos.items()}

@@ -20,7 +20,16 @@ import numpy as np
 import pytest
 
 from slotexp.record import read_log
-from tests.helpers import SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, run_on_emulator, slot
+from tests.helpers import (
+    SLOT_CMD,
+    assert_one_line_error,
+    assert_png,
+    last_line,
+    ok,
+    run_on_emulator,
+    slot,
+    turned_off_after_on,
+)
 from tests.servo_emulator import OdometryPublisher, ServoEmulator
 
 
@@ -67,12 +76,12 @@ def test_ctrl_c_turns_the_torque_off_and_closes_the_log(tmp_path: Path) -> None:
                 proc.communicate()
         time.sleep(0.05)
         torque = emu.torque()
-        history = {i: s.torque_history for i, s in emu.servos.items()}
+        history = emu.torque_writes()  # the host's writes: a starved run may also trip the watchdog
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr and "interrupted (SIGINT)" in stderr
     assert last_line(stdout) == str(run_dir)
     assert torque == {1: 0, 2: 0, 3: 0, 4: 0}
-    assert all(h[-2:] == [1, 0] for h in history.values()), history
+    assert all(turned_off_after_on(h) for h in history.values()), history
     log = read_log(run_dir / "logs" / "hardware.mcap")
     assert not log.truncated and len(log["/state"]) >= 5
     assert log.metadata["summary"]["stop_reason"] == "SIGINT"

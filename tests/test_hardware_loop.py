@@ -18,7 +18,7 @@ from slotexp.hardware.mapping import ServoMap
 from slotexp.hardware.run import EXIT_SAFETY_STOP, run_hardware
 from slotexp.record import read_log
 from slotexp.runlog import load_run
-from tests.helpers import load_hardware, run_on_emulator
+from tests.helpers import load_hardware, run_on_emulator, turned_off_after_on
 from tests.servo_emulator import INST_SYNC_READ, OdometryPublisher, ServoEmulator
 
 SIM_TOPICS = {
@@ -45,7 +45,7 @@ def goal_ticks(log) -> np.ndarray:
 def test_full_loop_commands_the_mapped_tendon_angles(tmp_path: Path) -> None:
     with ServoEmulator() as emu, OdometryPublisher() as pub:
         result, notes = run_on_emulator(emu, pub, tmp_path, "duration=2")
-        torque_history = {i: list(s.torque_history) for i, s in emu.servos.items()}
+        torque_history = emu.torque_writes()
         watchdog = {i: emu.register(i, "bus_watchdog") for i in emu.servos}
         final_goal = [emu.register(i, "goal_position") for i in (1, 2, 3, 4)]
         torque = emu.torque()
@@ -68,7 +68,7 @@ def test_full_loop_commands_the_mapped_tendon_angles(tmp_path: Path) -> None:
     assert final_goal == goal_ticks(log)[-1].astype(int).tolist()
     assert not log["/servos"][[f"clamped.{i}" for i in range(4)]].to_numpy().any()
     # torque on for the run, watchdog armed (100 ms = 5 units), both cleared at the end
-    assert all(h[-2:] == [1, 0] for h in torque_history.values()), torque_history
+    assert all(turned_off_after_on(h) for h in torque_history.values()), torque_history
     assert torque == {1: 0, 2: 0, 3: 0, 4: 0} and watchdog == {1: 0, 2: 0, 3: 0, 4: 0}
     assert any("position limits set" in n for n in notes)
     loop = log.metadata["loop"]
