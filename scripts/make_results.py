@@ -229,7 +229,7 @@ def main(names: list[str]) -> None:
             for f in run_dir.glob(pattern):
                 shutil.copy2(f, dest / f.name)
         if name == "calibrate":  # the controller's calibrated map is this run's output
-            shutil.copy2(run_dir / "actuation_calibrated.yaml", ROOT / "conf" / "actuation" / "calibrated.yaml")
+            shutil.copy2(run_dir / "actuation_calibrated.yaml", ROOT / "slotexp" / "conf" / "actuation" / "calibrated.yaml")
         if name.startswith("gait_search_"):  # the gait controllers' library is these runs' output
             install_library(run_dir / "library.yaml")
     timing_path.write_text(json.dumps(timing, indent=2) + "\n")
