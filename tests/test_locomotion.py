@@ -102,6 +102,10 @@ def test_search_cost_prefers_speed_along_the_heading_and_charges_drift() -> None
     assert cost(fast, 0.0) == pytest.approx(-20.0)
     assert cost(fast, 0.0) < cost(slow, 0.0) and cost(fast, 0.0) < cost(drifting, 0.0)
     assert cost(fast, 180.0) > 0  # going the wrong way costs
+    # a neighbour's gait 45 deg off beats standing still, so an oblique heading's search has a slope to follow
+    still = GaitMetrics(**{**base, "vx": 0.0, "speed": 0.0})
+    assert cost(fast, 45.0) < cost(still, 45.0) == pytest.approx(0.0)
+    assert cost(fast, 0.0) < cost(fast, 20.0) < cost(fast, 45.0)
     x = to_vector(_prim(), TOP)
     np.testing.assert_allclose(to_vector(from_vector(x, TOP), TOP), x)
 

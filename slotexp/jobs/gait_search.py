@@ -58,6 +58,8 @@ class GaitSearchExperiment:
     duration: float = num_field(5.0, lo=0.5, hi=600.0, unit="s")  # simulated per candidate
     settle: float = num_field(1.0, lo=0.0, hi=600.0, unit="s")  # before the measured window
     verify_duration: float = num_field(8.0, lo=0.5, hi=600.0, unit="s")  # the library's measurements
+    # a translating gait slower than this when verified stays out of the library (a failed heading)
+    min_speed: float = num_field(5.0, lo=0.0, unit="mm/s")
     n_jobs: int = num_field(0, lo=0, unit="processes")  # 0 = one per core
     seed: int = num_field(1, lo=0, unit="")
 
@@ -278,6 +280,8 @@ def library_from_log(cfg: SlotConfig, verified: pd.DataFrame) -> GaitStyleConfig
     for _, row in verified.iterrows():
         if row.get("failed", False):
             continue
+        if str(row["target"]) != TURN and float(row["speed"]) < exp.min_speed:
+            continue  # a heading the search did not find a gait for: the library blends its neighbours
         prim = Primitive(
             str(row["name"]),
             *(np.array([row[f"{key}.{k}"] for k in range(4)]) for key in ("base_deg", "amplitude_deg", "phase")),

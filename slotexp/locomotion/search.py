@@ -26,8 +26,10 @@ LOWER = np.array([0.0] * 8 + [-np.inf] * 3)
 UPPER = np.array([1.0] * 8 + [np.inf] * 3)
 
 # cost weights (mm/s per unit), and the allowances below which nothing is charged
-LATERAL = 1.0  # per mm/s across the heading
-HEADING = 2.0  # per deg of heading error beyond HEADING_FREE
+# LATERAL < 1 and a mild HEADING keep a slope toward an oblique heading from a neighbour's gait: the
+# forward gait asked for 45 deg must cost less than standing still, or CMA-ES settles on standing
+LATERAL = 0.5  # per mm/s across the heading
+HEADING = 0.1  # per deg of heading error beyond HEADING_FREE
 HEADING_FREE = 3.0  # deg
 YAW_RATE = 3.0  # per deg/s
 YAW_TOTAL = 3.0  # per deg of total yaw beyond YAW_FREE
