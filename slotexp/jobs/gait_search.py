@@ -51,6 +51,7 @@ class GaitSearchExperiment:
     headings: list[float] = field(default_factory=lambda: [0.0, 90.0, 45.0, 60.0])
     turn: bool = True  # also search turning in place (left; right by mirror)
     free_phases: bool = True  # false: keep the starting primitive's phases
+    start_from: str | None = None  # a library primitive every heading starts from (default: the nearest)
     max_evals: int = num_field(300, lo=2, hi=100000, unit="candidates per heading")
     popsize: int = num_field(12, lo=2, hi=1000, unit="")
     sigma0: float = num_field(0.15, lo=0.0, lo_open=True, hi=1.0, unit="of the tendon range")  # a new heading
@@ -73,6 +74,12 @@ class GaitSearchExperiment:
             )
         if not self.headings and not self.turn:
             raise ConfigError("nothing to search: give experiment.headings or experiment.turn=true")
+        names = [p.name for p in cfg.controller.library[self.style].primitives]
+        if self.start_from is not None and self.start_from not in names:
+            raise ConfigError(
+                f"experiment.start_from = {self.start_from!r} is not a {self.style} primitive: choose one of "
+                f"{', '.join(names)}"
+            )
         if self.settle >= self.duration:
             raise ConfigError(
                 f"experiment.settle = {self.settle:g} s leaves nothing of experiment.duration = "
@@ -203,6 +210,8 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         for i, target in enumerate(targets):
             task = bar.add_task(f"{_label(target):<8}", total=exp.max_evals + 1)
             start = _start(current, target)
+            if exp.start_from is not None and target != TURN:
+                start = next(p for p in current if p.name == exp.start_from)
             x0 = to_vector(start, top)
             sigma = exp.sigma_refine if _near(start, target) else exp.sigma0
             generation = 0
@@ -302,7 +311,8 @@ def library_from_log(cfg: SlotConfig, verified: pd.DataFrame) -> GaitStyleConfig
     kept = []
     for p in style.primitives:
         replaced = any(
-            (p.heading_deg is None) == (q.heading_deg is None)
+            p.name == q.name  # the same target searched again
+            or (p.heading_deg is None) == (q.heading_deg is None)
             and (
                 p.heading_deg is None
                 and np.sign(p.yaw_rate_dps) == np.sign(q.yaw_rate_dps)
