@@ -8,6 +8,7 @@ are written to results/timing.json.
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -23,7 +24,9 @@ CRAWL = 0.006
 OMNI = 0.015
 LATERAL = 0.015
 TABLE1 = 0.015
+HEADING_SPEED = 0.012
 LIBRARY = ROOT / "slotexp" / "conf" / "library" / "default.yaml"
+CALIBRATED = ROOT / "slotexp" / "conf" / "actuation" / "calibrated.yaml"
 
 RUNS = {
     # Paper Table I, Figs. 7-8 on the ideal plant with the default solver.
@@ -185,6 +188,23 @@ RUNS = {
     "perturb_cosserat_standstill": ["experiment=perturb", "plant=cosserat", "gait.velocity=[0,0]"],
 }
 
+# Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
+HEADINGS = range(0, 360, 45)  # deg, world frame (the robot starts at zero yaw)
+SWEEPS = {
+    # The walk in 8 directions at 12 mm/s under gait_mpc: speed and heading error per direction.
+    "headings_cosserat": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        "gait.velocity="
+        + ",".join(
+            f"[{HEADING_SPEED * math.cos(math.radians(h)):.5f},{HEADING_SPEED * math.sin(math.radians(h)):.5f}]"
+            for h in HEADINGS
+        ),
+        "experiment.duration=20",
+    ],
+}
+
 # Benchmarks: `slot bench <component>`, measured in one process (run with nothing else on the machine).
 BENCHES = {
     "bench_mpc": ["mpc"],
@@ -208,20 +228,25 @@ def install_library(searched: Path) -> None:
 def main(names: list[str]) -> None:
     timing_path = ROOT / "results" / "timing.json"
     timing = json.loads(timing_path.read_text()) if timing_path.exists() else {}
-    unknown = [n for n in names if n not in RUNS and n not in BENCHES]
+    known = [*RUNS, *SWEEPS, *BENCHES]
+    unknown = [n for n in names if n not in known]
     if unknown:
-        raise SystemExit(f"error: unknown result {unknown[0]!r}: choose from {', '.join([*RUNS, *BENCHES])}")
-    for name in names or [*RUNS, *BENCHES]:
+        raise SystemExit(f"error: unknown result {unknown[0]!r}: choose from {', '.join(known)}")
+    for name in names or known:
         run_dir = ROOT / "experiments" / "results" / name
         shutil.rmtree(run_dir, ignore_errors=True)
         start = time.perf_counter()
         if name in BENCHES:
             print(f"== {name}: slot bench {' '.join(BENCHES[name])}", flush=True)
             subprocess.run([SLOT, "bench", *BENCHES[name], "--out", str(run_dir)], cwd=ROOT, check=True)
+        elif name in SWEEPS:
+            print(f"== {name}: slot run -m {' '.join(SWEEPS[name])}", flush=True)
+            subprocess.run([SLOT, "run", "-m", *SWEEPS[name], f"hydra.sweep.dir={run_dir}"], cwd=ROOT, check=True)
+            subprocess.run([SLOT, "summarize", str(run_dir)], cwd=ROOT, check=True)
         else:
             print(f"== {name}: slot run {' '.join(RUNS[name])}", flush=True)
             subprocess.run([SLOT, "run", *RUNS[name], f"hydra.run.dir={run_dir}"], cwd=ROOT, check=True)
-        timing[name] = {"wall_s": round(time.perf_counter() - start, 1), "args": RUNS.get(name, BENCHES.get(name))}
+        timing[name] = {"wall_s": round(time.perf_counter() - start, 1), "args": {**RUNS, **SWEEPS, **BENCHES}[name]}
         dest = ROOT / "results" / name
         shutil.rmtree(dest, ignore_errors=True)
         dest.mkdir(parents=True)
@@ -229,7 +254,7 @@ def main(names: list[str]) -> None:
             for f in run_dir.glob(pattern):
                 shutil.copy2(f, dest / f.name)
         if name == "calibrate":  # the controller's calibrated map is this run's output
-            shutil.copy2(run_dir / "actuation_calibrated.yaml", ROOT / "slotexp" / "conf" / "actuation" / "calibrated.yaml")
+            shutil.copy2(run_dir / "actuation_calibrated.yaml", CALIBRATED)
         if name.startswith("gait_search_"):  # the gait controllers' library is these runs' output
             install_library(run_dir / "library.yaml")
     timing_path.write_text(json.dumps(timing, indent=2) + "\n")
