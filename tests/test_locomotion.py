@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from slotexp.controllers import make_controller
+from slotexp.errors import ConfigError
 from slotexp.locomotion.library import GaitLibrary
 from slotexp.locomotion.openloop import GaitMetrics, run_gait
 from slotexp.locomotion.primitives import GaitStyle, Primitive, mix, stance
@@ -161,3 +162,9 @@ def test_open_loop_and_gait_mpc_take_tendon_commands_the_plant_can_use() -> None
     assert step.tendon_deg.shape == (4,) and np.all((0 <= step.tendon_deg) & (step.tendon_deg <= TOP))
     plant.step(TendonCommand(step.tendon_deg), ctrl.period)
     assert set(step.telemetry) >= {"phase", "velocity_command", "speed_fraction"}
+
+
+def test_gait_search_refuses_a_start_primitive_the_library_lacks() -> None:
+    assert load("plant=cosserat", "experiment=gait_search", "experiment.start_from=walk_turn").experiment.start_from
+    with pytest.raises(ConfigError, match="experiment.start_from = 'nope' is not a walk primitive"):
+        load("plant=cosserat", "experiment=gait_search", "experiment.start_from=nope")
