@@ -309,7 +309,7 @@ class ControllerConfig:
     library: dict[str, GaitStyleConfig] = field(default_factory=dict)  # style name -> style (conf/library/)
     # gait_mpc: each step adds this fraction of the MPC's planned change of velocity (and yaw rate) to the gait command
     velocity_gain: float = num_field(0.02, lo=0.0, hi=1.0, unit="")
-    yaw_gain: float = num_field(0.005, lo=0.0, hi=1.0, unit="")
+    yaw_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
 
 
 # --------------------------------------------------------------------------- scenarios
