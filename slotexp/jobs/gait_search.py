@@ -108,6 +108,23 @@ def _evaluate(task: tuple[np.ndarray, float, float]) -> dict:
         return {"error": f"{type(exc).__name__}: {exc}"}
 
 
+class _InProcess:
+    """The pool's ``map`` in this process: one worker needs no pool, and a Hydra joblib (loky)
+    job cannot start one (its children cannot find the 'loky' start method)."""
+
+    def __init__(self, cfg: SlotConfig, style: GaitStyle) -> None:
+        _init_worker(cfg, style)
+
+    def map(self, fn, tasks):
+        return map(fn, tasks)
+
+    def __enter__(self) -> _InProcess:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        return None
+
+
 def _style_of(cfg: SlotConfig, name: str) -> GaitStyle:
     s = cfg.controller.library[name]
     return GaitStyle(s.frequency_hz, s.duty, s.sharpness)
@@ -203,7 +220,11 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
     with (
         Recorder(out_dir / "logs" / "gait_search.mcap", metadata=meta) as rec,
-        ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(cfg, style)) as pool,
+        (
+            _InProcess(cfg, style)
+            if workers == 1
+            else ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(cfg, style))
+        ) as pool,
         Progress(*columns, console=Console(stderr=True), transient=False) as bar,
     ):
         written = 0  # candidates logged so far: the log's clock
