@@ -107,3 +107,35 @@ def test_divergence_stops_with_one_line_naming_dt(tmp_path):
 def test_paper_leg_model_needs_the_symplectic_step(tmp_path):
     proc = slot("run", "experiment=leg", "robot.leg.model=paper", f"hydra.run.dir={tmp_path / 'x'}", cwd=tmp_path)
     one_line_error(proc, "robot.leg.model=paper", "symplectic")
+
+
+def test_gait_search_sweeps_headings_as_a_hydra_multirun(tmp_path):
+    """One heading per job, the jobs in parallel (joblib), candidates evaluated in each job's process."""
+    sweep = tmp_path / "sweep"
+    ok(
+        slot(
+            "run",
+            "-m",
+            "experiment=gait_search",
+            "plant=cosserat",
+            "experiment.headings=[0],[90]",
+            "experiment.turn=false",
+            "experiment.max_evals=2",
+            "experiment.popsize=2",
+            "experiment.duration=1",
+            "experiment.settle=0.5",
+            "experiment.verify_duration=1",
+            "experiment.n_jobs=1",
+            f"hydra.sweep.dir={sweep}",
+            cwd=tmp_path,
+            timeout=600,
+        )
+    )
+    jobs = sorted(p for p in sweep.iterdir() if p.is_dir())
+    assert len(jobs) == 2
+    for job, target in zip(jobs, ("h+000.0", "h+090.0"), strict=True):
+        candidates = read_log(job / "logs" / "gait_search.mcap")["/search/candidate"]
+        assert set(candidates["target"]) == {target} and len(candidates) == 3  # the start, then 2
+        metrics = json.loads((job / "metrics.json").read_text())
+        assert [v["target"] for v in metrics["verified"]][0] == target
+        assert (job / "library.yaml").is_file() and (job / "fig_search.png").is_file()
