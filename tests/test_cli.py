@@ -253,7 +253,7 @@ def test_ctrl_c_exits_130_and_leaves_a_closed_log(tmp_path: Path) -> None:
             "run",
             "experiment=perturb",
             "experiment.scenarios=[baseline]",
-            "experiment.duration=25",
+            "experiment.duration=600",  # a loaded machine cannot finish it before the signal
             "experiment.n_jobs=1",
             f"hydra.run.dir={run_dir}",
         ],
@@ -286,7 +286,7 @@ def test_ctrl_c_exits_130_and_leaves_a_closed_log(tmp_path: Path) -> None:
     log = read_log(log_path)
     assert log.truncated is False, "the interrupted run's log was not closed properly"
     t = log["/state"]["t"].to_numpy()
-    assert 0 < len(t) < 750, "the run was not actually interrupted part-way"
+    assert 0 < len(t) < 600 * 30, "the run was not actually interrupted part-way"
     assert np.all(np.diff(t) > 0)
     assert "config" in log.metadata and "run" in log.metadata
     assert "summary" not in log.metadata  # only written when the run completes
