@@ -29,7 +29,7 @@ def plot_polar(verified: pd.DataFrame, path: str | Path, style: str) -> Path:
     )
     if text:
         fig.text(0.02, 0.01, "turning: " + text, fontsize=7)
-    ax.legend(loc="lower left", bbox_to_anchor=(-0.1, -0.06), fontsize=7)
+    ax.legend(loc="lower right", bbox_to_anchor=(1.15, -0.02), fontsize=7)
     return save(fig, path)
 
 
