@@ -131,18 +131,7 @@ def _style_of(cfg: SlotConfig, name: str) -> GaitStyle:
 
 
 def _primitives(cfg: GaitStyleConfig) -> list[Primitive]:
-    return [
-        Primitive(
-            p.name,
-            np.asarray(p.base_deg, float),
-            np.asarray(p.amplitude_deg, float),
-            np.asarray(p.phase, float),
-            p.heading_deg,
-            p.speed_mps,
-            p.yaw_rate_dps,
-        )
-        for p in cfg.primitives
-    ]
+    return [Primitive.from_config(p) for p in cfg.primitives]
 
 
 def _start(prims: list[Primitive], target: float | str) -> Primitive:

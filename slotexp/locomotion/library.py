@@ -57,18 +57,7 @@ class GaitLibrary:
 
     @classmethod
     def from_config(cls, cfg: GaitStyleConfig, standing_deg: float, top_deg: float) -> GaitLibrary:
-        prims = [
-            Primitive(
-                p.name,
-                np.asarray(p.base_deg, float),
-                np.asarray(p.amplitude_deg, float),
-                np.asarray(p.phase, float),
-                p.heading_deg,
-                p.speed_mps,
-                p.yaw_rate_dps,
-            )
-            for p in cfg.primitives
-        ]
+        prims = [Primitive.from_config(p) for p in cfg.primitives]
         return cls(GaitStyle(cfg.frequency_hz, cfg.duty, cfg.sharpness), prims, standing_deg, top_deg)
 
     def _bracket(self, heading_deg: float) -> tuple[Primitive, Primitive, float]:

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import PrimitiveConfig
+
 # mirror images of a gait: the torso is symmetric about its x and y axes
 MIRROR_X = (3, 2, 1, 0)  # about the body x axis: FL<->FR, RL<->RR (heading h -> -h, yaw rate -> -yaw rate)
 MIRROR_Y = (1, 0, 3, 2)  # about the body y axis: FL<->RL, FR<->RR (heading h -> 180 - h, yaw rate -> -yaw rate)
@@ -60,6 +62,18 @@ class Primitive:
     heading_deg: float | None = None  # direction of travel in the body frame; None: turning or standing
     speed_mps: float = 0.0  # measured mean speed along ``heading_deg``
     yaw_rate_dps: float = 0.0  # measured mean yaw rate
+
+    @classmethod
+    def from_config(cls, p: PrimitiveConfig) -> Primitive:
+        return cls(
+            p.name,
+            np.asarray(p.base_deg, float),
+            np.asarray(p.amplitude_deg, float),
+            np.asarray(p.phase, float),
+            p.heading_deg,
+            p.speed_mps,
+            p.yaw_rate_dps,
+        )
 
     def angles(self, style: GaitStyle, psi: np.ndarray | float, top: float) -> np.ndarray:
         """Tendon angles (..., 4) at phase(s) ``psi`` (cycles), clipped to [0, ``top``]."""
