@@ -9,7 +9,7 @@ from slotexp.controllers import make_controller
 from slotexp.errors import ConfigError
 from slotexp.locomotion.library import GaitLibrary
 from slotexp.locomotion.openloop import GaitMetrics, run_gait
-from slotexp.locomotion.primitives import GaitStyle, Primitive, mix, stance
+from slotexp.locomotion.primitives import GaitStyle, Primitive, interpolate, mix, stance
 from slotexp.locomotion.search import cost, from_vector, search, to_vector
 from slotexp.plants import TendonCommand, make_plant, nominal_state
 from slotexp.robot import build_robot
@@ -61,6 +61,20 @@ def test_mix_is_the_weighted_sum_and_stance_is_the_pressing_half() -> None:
     np.testing.assert_array_equal(flags, a.angles(STYLE, psi, TOP) >= cycle)
     still = stance(STYLE, [(1.0, Primitive.still("s", 60.0))], psi, TOP)
     assert still.all()  # a standing robot has every foot in stance
+
+
+def test_interpolated_primitive_runs_from_a_to_b_along_the_shorter_phase_arc() -> None:
+    a = _prim("a")
+    b = Primitive("b", a.base_deg + 10.0, a.amplitude_deg - 20.0, np.array([0.0, 0.3, 0.45, -0.45]), 90.0, 0.02)
+    for lam, want in ((0.0, a), (1.0, b)):
+        p = interpolate(a, b, lam)
+        np.testing.assert_allclose(p.base_deg, want.base_deg)
+        np.testing.assert_allclose(p.amplitude_deg, want.amplitude_deg)
+        np.testing.assert_allclose((p.phase - want.phase + 0.5) % 1.0 - 0.5, 0.0, atol=1e-12)  # same phase mod 1
+    half = interpolate(a, b, 0.5)
+    # RL: -0.1 -> 0.3 directly (0.4 of a cycle); FR: 0.5 -> -0.45 = 0.55 the short way (0.05 of a cycle)
+    np.testing.assert_allclose(half.phase, [0.0, 0.1, 0.425, 0.525])
+    np.testing.assert_allclose(half.base_deg, a.base_deg + 5.0)
 
 
 def test_library_brackets_headings_and_scales_speed_against_standing() -> None:

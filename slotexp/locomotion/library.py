@@ -23,7 +23,7 @@ import numpy as np
 
 from ..config import GaitStyleConfig
 from ..errors import ConfigError
-from .primitives import GaitStyle, Primitive
+from .primitives import GaitStyle, Primitive, interpolate
 
 
 @dataclass
@@ -37,8 +37,16 @@ class GaitCommand:
 class GaitLibrary:
     """One style's primitives: translation in measured directions, turning left and right, standing."""
 
-    def __init__(self, style: GaitStyle, primitives: list[Primitive], standing_deg: float, top_deg: float) -> None:
+    def __init__(
+        self,
+        style: GaitStyle,
+        primitives: list[Primitive],
+        standing_deg: float,
+        top_deg: float,
+        blend: str = "schedules",
+    ) -> None:
         self.style = style
+        self.blend = blend
         self.top = top_deg
         self.still = Primitive.still("still", standing_deg)
         moving = [p for p in primitives if p.heading_deg is not None and p.speed_mps > 0]
@@ -56,9 +64,11 @@ class GaitLibrary:
             )
 
     @classmethod
-    def from_config(cls, cfg: GaitStyleConfig, standing_deg: float, top_deg: float) -> GaitLibrary:
+    def from_config(
+        cls, cfg: GaitStyleConfig, standing_deg: float, top_deg: float, blend: str = "schedules"
+    ) -> GaitLibrary:
         prims = [Primitive.from_config(p) for p in cfg.primitives]
-        return cls(GaitStyle(cfg.frequency_hz, cfg.duty, cfg.sharpness), prims, standing_deg, top_deg)
+        return cls(GaitStyle(cfg.frequency_hz, cfg.duty, cfg.sharpness), prims, standing_deg, top_deg, blend)
 
     def _bracket(self, heading_deg: float) -> tuple[Primitive, Primitive, float]:
         """The two primitives whose headings bracket ``heading_deg`` (cyclically) and the blend fraction."""
@@ -97,7 +107,10 @@ class GaitLibrary:
             turn, r = self.turn_right, min(1.0, yaw_rate_dps / self.turn_right.yaw_rate_dps)
         if s + r > 1.0:
             s, r = s / (s + r), r / (s + r)
-        parts = [(s * (1.0 - lam), a), (s * lam, b), (1.0 - s - r, self.still)]
+        if self.blend == "parameters":
+            parts = [(s, interpolate(a, b, lam)), (1.0 - s - r, self.still)]
+        else:
+            parts = [(s * (1.0 - lam), a), (s * lam, b), (1.0 - s - r, self.still)]
         if turn is not None:
             parts.append((r, turn))
         return GaitCommand(parts, s, r if yaw_rate_dps >= 0 else -r, top)

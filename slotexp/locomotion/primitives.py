@@ -117,6 +117,19 @@ class Primitive:
         return Primitive(name, np.full(4, angle_deg), np.zeros(4), np.zeros(4))
 
 
+def interpolate(a: Primitive, b: Primitive, lam: float) -> Primitive:
+    """The primitive a fraction ``lam`` of the way from ``a`` to ``b`` in its parameters: bases and
+    amplitudes linearly, each leg's phase along the shorter arc of the cycle. Unlike a mix of the
+    two schedules, it keeps one leg sequence, so it stays a gait when ``a`` and ``b`` are phased differently."""
+    dphi = (b.phase - a.phase + 0.5) % 1.0 - 0.5
+    return Primitive(
+        f"{a.name}~{b.name}",
+        (1.0 - lam) * a.base_deg + lam * b.base_deg,
+        (1.0 - lam) * a.amplitude_deg + lam * b.amplitude_deg,
+        a.phase + lam * dphi,
+    )
+
+
 def mix(style: GaitStyle, parts: list[tuple[float, Primitive]], psi: np.ndarray | float, top: float) -> np.ndarray:
     """Tendon angles (..., 4) of the weighted mix ``sum w_j theta_j(psi)`` of primitives at one clock."""
     out = 0.0
