@@ -265,15 +265,15 @@ def test_ctrl_c_exits_130_and_leaves_a_closed_log(tmp_path: Path) -> None:
         start_new_session=True,
     )
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 180  # a clean checkout compiles its kernels first
         while time.monotonic() < deadline and proc.poll() is None:
             if log_path.exists() and log_path.stat().st_size > 100_000:
                 break
             time.sleep(0.1)
         assert proc.poll() is None, f"run ended before it could be interrupted:\n{proc.stderr.read()}"
-        assert log_path.exists(), "no log appeared within 60 s"
+        assert log_path.exists(), "no log appeared within 180 s"
         os.killpg(proc.pid, signal.SIGINT)
-        stdout, stderr = proc.communicate(timeout=30)
+        stdout, stderr = proc.communicate(timeout=120)  # generous: a loaded machine shuts down slowly
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
