@@ -221,6 +221,8 @@ def install_library(searched: Path) -> None:
     LIBRARY.write_text(
         "# @package controller.library\n# The gait library, written by `make results` from "
         "`slot run experiment=gait_search` (results/gait_search_*).\n"
+        "# Per style: frequency_hz divides the 30 Hz MPC rate (walk 30/16, crawl 30/40), so every cycle samples\n"
+        "# the waveform at the same ticks; duty and sharpness shape it (slotexp/locomotion/primitives.py).\n"
         + yaml.safe_dump(library, default_flow_style=None, sort_keys=False, width=120)
     )
 
