@@ -200,6 +200,8 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
     style = _style_of(cfg, exp.style)
     top = cfg.robot.leg.tendon_max_deg
     current = _primitives(cfg.controller.library[exp.style])
+    # experiment.start_from, taken from the library as it was (a searched heading may replace it in `current`)
+    fixed_start = next((p for p in current if p.name == exp.start_from), None)
     # in the order given, each heading starting from the nearest gait found so far (or a quarter turn of one)
     targets: list[float | str] = [float(h) for h in exp.headings] + ([TURN] if exp.turn else [])
     (out_dir / "logs").mkdir(parents=True, exist_ok=True)
@@ -219,9 +221,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         written = 0  # candidates logged so far: the log's clock
         for i, target in enumerate(targets):
             task = bar.add_task(f"{_label(target):<8}", total=exp.max_evals + 1)
-            start = _start(current, target)
-            if exp.start_from is not None and target != TURN:
-                start = next(p for p in current if p.name == exp.start_from)
+            start = fixed_start if fixed_start is not None and target != TURN else _start(current, target)
             x0 = to_vector(start, top)
             sigma = exp.sigma_refine if _near(start, target) else exp.sigma0
             generation = 0

@@ -4,7 +4,9 @@ A command (v_x, v_y) in the body frame and a yaw rate becomes a weighted mix of
 primitives at the style's clock (:func:`.primitives.mix`):
 
 - the direction of travel picks the two translating primitives whose measured
-  headings bracket it, blended in proportion to the angle between them;
+  headings bracket it, blended in proportion to the angle between them: their
+  schedules mixed (``blend="schedules"``, the default), or one primitive with their
+  parameters interpolated (``blend="parameters"``, :func:`.primitives.interpolate`);
 - the speed, as a fraction s of what that blend measured, sets its weight: the rest
   goes to standing still (every tendon at the standing angle), so a slower gait
   is the same gait with smaller tendon strokes;
@@ -45,6 +47,8 @@ class GaitLibrary:
         top_deg: float,
         blend: str = "schedules",
     ) -> None:
+        if blend not in ("schedules", "parameters"):
+            raise ValueError(f"blend must be 'schedules' or 'parameters', not {blend!r}")
         self.style = style
         self.blend = blend
         self.top = top_deg
