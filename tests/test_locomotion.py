@@ -85,7 +85,7 @@ def test_library_brackets_headings_and_scales_speed_against_standing() -> None:
         _prim("r", -90.0, 0.02),
         Primitive("turn", np.full(4, 60.0), np.full(4, 40.0), np.array([0, 0.25, 0.5, 0.75]), None, 0.0, 6.0),
     ]
-    lib = GaitLibrary(STYLE, prims, 70.0, TOP)
+    lib = GaitLibrary(STYLE, prims, 70.0, TOP, blend="schedules")
     assert lib.max_speed(45.0) == pytest.approx(0.025)  # halfway between 0.03 (0 deg) and 0.02 (90 deg)
     cmd = lib.command(np.array([0.015, 0.0]), 0.0)
     weights = {p.name: w for w, p in cmd.parts}
@@ -95,6 +95,30 @@ def test_library_brackets_headings_and_scales_speed_against_standing() -> None:
     w = {p.name: w for w, p in turning.parts}
     assert w["turn"] == pytest.approx(1 / 3) and w["f"] == pytest.approx(2 / 3)
     assert lib.command(np.array([0.0, -0.02]), 0.0).parts[0][1].name in ("r", "b")  # bracket by heading
+
+
+def test_cycle_blend_alternates_whole_primitives_so_the_mean_velocity_points_where_commanded() -> None:
+    prims = [_prim("f", 0.0, 0.03), _prim("f_slow", 4.0, 0.02), _prim("l", 90.0, 0.02), _prim("b", 180.0, 0.03)]
+    lib = GaitLibrary(STYLE, prims, 70.0, TOP)  # blend="cycles" by default
+    assert [p.name for p in lib.translation] == ["f", "l", "b"]  # a slower gait 4 deg from a faster one is dropped
+    # across 45 deg: f at 0.03 m/s makes -0.0212 m/s, l at 0.02 m/s +0.0141: 60 % of the cycles are l's
+    along = 0.4 * 0.03 * np.cos(np.pi / 4) + 0.6 * 0.02 * np.cos(np.pi / 4)
+    assert lib.max_speed(45.0) == pytest.approx(along)
+    cmd = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4)]) * along * 0.5  # half the envelope
+    total = np.zeros(2)
+    for cycle in range(200):
+        chosen = {lib.command(cmd, 0.0, cycle).parts[0][1].name for _ in range(3)}  # one choice per cycle
+        assert len(chosen) == 1 and chosen <= {"f", "l"}
+        parts = lib.command(cmd, 0.0, cycle).parts
+        (w, p), (w_still, still) = parts
+        assert w == pytest.approx(0.5) and still.name == "still" and w_still == pytest.approx(0.5)
+        total += w * p.speed_mps * np.array([np.cos(np.radians(p.heading_deg)), np.sin(np.radians(p.heading_deg))])
+    assert np.degrees(np.arctan2(total[1], total[0])) == pytest.approx(45.0, abs=0.5)
+    assert np.hypot(*total) / 200 == pytest.approx(along * 0.5, rel=0.01)
+    # near a primitive (within a quarter of the gap) the schedules are mixed by angle, as blend="schedules" does
+    near = lib.command(np.array([0.01, 0.01 * np.tan(np.radians(9.0))]), 0.0, 0)
+    weights = {p.name: w for w, p in near.parts}
+    assert weights["l"] / (weights["f"] + weights["l"]) == pytest.approx(0.1)
 
 
 def test_search_cost_prefers_speed_along_the_heading_and_charges_drift() -> None:

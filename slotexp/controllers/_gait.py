@@ -53,7 +53,7 @@ class GaitController(MpcController):
             self.origin = x[3:5].copy()
         cfg = self.cfg
         horizon = cfg.mpc.horizon
-        self.command = self.library.command(self.velocity, self.yaw_rate)
+        self.command = self.library.command(self.velocity, self.yaw_rate, cycle=int(np.floor(self.psi + 1e-9)))
         dpsi = self.style.frequency_hz * self.period
         psi = self.psi + dpsi * np.arange(horizon)
         plan = contact_plan(
@@ -73,6 +73,11 @@ class GaitController(MpcController):
             "speed_fraction": self.command.speed_fraction,
             "yaw_fraction": self.command.yaw_fraction,
             "max_speed": self.command.max_speed,
+            # the measured heading of the translating primitive with the largest weight (NaN: none)
+            "primitive_heading_deg": max(
+                ((w, p.heading_deg) for w, p in self.command.parts if p.heading_deg is not None and w > 0),
+                default=(0.0, float("nan")),
+            )[1],
             "gait_deg": gait,
         }
         return ControlStep(

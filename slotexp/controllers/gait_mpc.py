@@ -22,12 +22,14 @@ asks for is used where the legs can give it:
 - **Normal forces.** Each leg's tendon is offset from the gait by
   ``(f_z - m g / 4) / a`` with ``a`` the force-to-tendon map's slope (eq. 11,
   fitted to the leg by ``experiment=calibrate``; ``experiment=legmap`` gives the
-  same slope at every root height): height and attitude as in the paper. The part
-  common to the four legs (height) is applied at once; the legs' differences
-  (attitude) are averaged over one gait cycle. The gait rocks the body within each
-  cycle, and that rocking is how it walks (the leg that presses harder sticks): a
-  controller that flattened it step by step would stop the robot (measured: 20 ->
-  16 mm/s at a 20 mm/s command), so the MPC corrects the cycle's mean attitude.
+  same slope at every root height): height and attitude as in the paper, each
+  leg's offset averaged over one gait cycle. The gait heaves and rocks the body
+  within each cycle, and that is how it walks (the leg that presses harder sticks):
+  a controller that flattened it step by step would stop the robot, so the MPC
+  corrects the cycle's mean height and attitude. Measured on the forward gait at
+  full stroke (12 s at a 35 mm/s command): 30.6 mm/s with every offset averaged,
+  19.1 mm/s with the height part applied step by step, 31.6 mm/s open loop; CoM z
+  RMSE 2.1 and 1.7 mm.
 """
 
 from __future__ import annotations
@@ -49,8 +51,10 @@ MAX_OFFSET_DEG = 30.0  # the normal-force correction stays a correction of the g
 class GaitMpcController(GaitController):
     def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
         super().__init__(cfg, robot)
-        # the legs' differences in normal force, averaged over one gait cycle (see the module docstring)
-        self.spread: deque[np.ndarray] = deque(maxlen=max(1, round(1.0 / (self.style.frequency_hz * self.period))))
+        # each leg's normal-force offset, averaged over one gait cycle (see the module docstring)
+        self.cycle_offsets: deque[np.ndarray] = deque(
+            maxlen=max(1, round(1.0 / (self.style.frequency_hz * self.period)))
+        )
 
     def adjust(self, x: np.ndarray, feet: np.ndarray, forces: np.ndarray, solution) -> np.ndarray:
         ctrl = self.cfg.controller
@@ -66,7 +70,5 @@ class GaitMpcController(GaitController):
         limit = self.library.max_yaw_rate_dps
         self.yaw_rate = float(np.clip(self.yaw_rate + ctrl.yaw_gain * self.period * yaw_accel, -limit, limit))
         offsets = (forces[:, 2] - self.weight / 4.0) / self.cfg.robot.actuation.slope_n_per_deg
-        common = float(offsets.mean())
-        self.spread.append(offsets - common)
-        per_leg = np.mean(self.spread, axis=0)
-        return np.clip(common + per_leg, -MAX_OFFSET_DEG, MAX_OFFSET_DEG)
+        self.cycle_offsets.append(offsets)
+        return np.clip(np.mean(self.cycle_offsets, axis=0), -MAX_OFFSET_DEG, MAX_OFFSET_DEG)

@@ -4,9 +4,18 @@ A command (v_x, v_y) in the body frame and a yaw rate becomes a weighted mix of
 primitives at the style's clock (:func:`.primitives.mix`):
 
 - the direction of travel picks the two translating primitives whose measured
-  headings bracket it, blended in proportion to the angle between them: their
-  schedules mixed (``blend="schedules"``, the default), or one primitive with their
-  parameters interpolated (``blend="parameters"``, :func:`.primitives.interpolate`);
+  headings bracket it. They combine in one of three ways (``blend``):
+
+  - ``"cycles"`` (the default): whole gait cycles of one or the other, chosen at
+    each cycle's start so that the running sum of the chosen primitives' velocities
+    across the commanded direction stays near zero (error diffusion, as in a
+    sigma-delta modulator). Every cycle is a gait the search found and measured;
+    the average velocity points where commanded. The two gaits may phase their legs
+    differently: a mix of them, sample by sample, is not a gait between them;
+  - ``"schedules"``: their schedules mixed sample by sample, in proportion to the
+    angle between them (right for neighbours with the same leg sequence);
+  - ``"parameters"``: one primitive with their parameters interpolated
+    (:func:`.primitives.interpolate`);
 - the speed, as a fraction s of what that blend measured, sets its weight: the rest
   goes to standing still (every tendon at the standing angle), so a slower gait
   is the same gait with smaller tendon strokes;
@@ -27,6 +36,10 @@ from ..config import GaitStyleConfig
 from ..errors import ConfigError
 from .primitives import GaitStyle, Primitive, interpolate
 
+BLENDS = ("cycles", "schedules", "parameters")
+NEAR = 0.25  # blend="cycles": within this fraction of the gap between two primitives, mix schedules instead
+MIN_SEPARATION_DEG = 10.0  # of two translating primitives closer than this in heading, the faster is kept
+
 
 @dataclass
 class GaitCommand:
@@ -45,16 +58,22 @@ class GaitLibrary:
         primitives: list[Primitive],
         standing_deg: float,
         top_deg: float,
-        blend: str = "schedules",
+        blend: str = "cycles",
     ) -> None:
-        if blend not in ("schedules", "parameters"):
-            raise ValueError(f"blend must be 'schedules' or 'parameters', not {blend!r}")
+        if blend not in BLENDS:
+            raise ValueError(f"blend must be one of {', '.join(BLENDS)}, not {blend!r}")
         self.style = style
         self.blend = blend
         self.top = top_deg
         self.still = Primitive.still("still", standing_deg)
-        moving = [p for p in primitives if p.heading_deg is not None and p.speed_mps > 0]
-        self.translation = sorted(moving, key=lambda p: p.heading_deg)
+        moving = sorted(
+            (p for p in primitives if p.heading_deg is not None and p.speed_mps > 0), key=lambda p: -p.speed_mps
+        )
+        kept: list[Primitive] = []
+        for p in moving:  # fastest first: a slower gait in nearly the same direction adds nothing to steer with
+            if all(abs((p.heading_deg - q.heading_deg + 180.0) % 360.0 - 180.0) >= MIN_SEPARATION_DEG for q in kept):
+                kept.append(p)
+        self.translation = sorted(kept, key=lambda p: p.heading_deg)
         self.turn_left = max(
             (p for p in primitives if p.heading_deg is None), key=lambda p: p.yaw_rate_dps, default=None
         )
@@ -66,10 +85,15 @@ class GaitLibrary:
                 "the gait library needs translating primitives in at least two directions: "
                 "run slot run experiment=gait_search (see the README)"
             )
+        # blend="cycles": the cycle whose primitive is chosen, that choice, and the running sum (m/s x cycles)
+        # of the chosen primitives' velocities across the commanded direction
+        self._cycle: int | None = None
+        self._second = False
+        self._owed = 0.0
 
     @classmethod
     def from_config(
-        cls, cfg: GaitStyleConfig, standing_deg: float, top_deg: float, blend: str = "schedules"
+        cls, cfg: GaitStyleConfig, standing_deg: float, top_deg: float, blend: str = "cycles"
     ) -> GaitLibrary:
         prims = [Primitive.from_config(p) for p in cfg.primitives]
         return cls(GaitStyle(cfg.frequency_hz, cfg.duty, cfg.sharpness), prims, standing_deg, top_deg, blend)
@@ -85,23 +109,57 @@ class GaitLibrary:
         span = span or 360.0
         return self.translation[j], self.translation[k], float((x - rel[j]) / span)
 
-    def max_speed(self, heading_deg: float) -> float:
-        """Speed (m/s) the blend for this body-frame direction measured: the envelope."""
+    @staticmethod
+    def _across_along(p: Primitive, heading_deg: float) -> tuple[float, float]:
+        """The primitive's measured velocity (m/s) across (to the left of) and along a direction."""
+        rel = np.radians(p.heading_deg - heading_deg)
+        return p.speed_mps * float(np.sin(rel)), p.speed_mps * float(np.cos(rel))
+
+    def _share(self, heading_deg: float) -> tuple[Primitive, Primitive, float, bool]:
+        """The bracketing primitives, the share of the second, and whether it is a share of whole cycles
+        (``blend="cycles"`` away from both primitives: the share whose mean velocity points along
+        ``heading_deg``) rather than of the schedules' weights (by angle)."""
         a, b, lam = self._bracket(heading_deg)
+        if self.blend != "cycles" or not NEAR < lam < 1.0 - NEAR:
+            return a, b, lam, False
+        across_a = self._across_along(a, heading_deg)[0]
+        across_b = self._across_along(b, heading_deg)[0]
+        if across_a * across_b < 0.0:
+            lam = across_a / (across_a - across_b)
+        return a, b, lam, True
+
+    def max_speed(self, heading_deg: float) -> float:
+        """Speed (m/s) along this body-frame direction that the blend for it makes at full weight: the envelope."""
+        a, b, lam, by_cycles = self._share(heading_deg)
+        if by_cycles:
+            return (1.0 - lam) * self._across_along(a, heading_deg)[1] + lam * self._across_along(b, heading_deg)[1]
         return (1.0 - lam) * a.speed_mps + lam * b.speed_mps
+
+    def _cycle_choice(self, a: Primitive, b: Primitive, heading_deg: float, cycle: int) -> Primitive:
+        """``a`` or ``b`` for this cycle (decided at its start): the one that keeps the running sum of the
+        chosen velocities across ``heading_deg`` nearer zero (error diffusion)."""
+        across_a = self._across_along(a, heading_deg)[0]
+        across_b = self._across_along(b, heading_deg)[0]
+        if cycle != self._cycle:
+            self._cycle = cycle
+            self._second = abs(self._owed + across_b) < abs(self._owed + across_a)
+            # bounded: a command that turns or a bracket that changes starts over within one cycle
+            bound = max(abs(across_a), abs(across_b))
+            self._owed = float(np.clip(self._owed + (across_b if self._second else across_a), -bound, bound))
+        return b if self._second else a
 
     @property
     def max_yaw_rate_dps(self) -> float:
         rates = [abs(p.yaw_rate_dps) for p in (self.turn_left, self.turn_right) if p is not None]
         return min(rates) if rates else 0.0
 
-    def command(self, velocity_body: np.ndarray, yaw_rate_dps: float) -> GaitCommand:
-        """The mix for a body-frame velocity (m/s) and a yaw rate (deg/s)."""
+    def command(self, velocity_body: np.ndarray, yaw_rate_dps: float, cycle: int = 0) -> GaitCommand:
+        """The mix for a body-frame velocity (m/s) and a yaw rate (deg/s) in gait cycle number ``cycle``."""
         v = np.asarray(velocity_body, float)
         speed = float(np.hypot(v[0], v[1]))
         heading = float(np.degrees(np.arctan2(v[1], v[0])))
-        a, b, lam = self._bracket(heading)
-        top = (1.0 - lam) * a.speed_mps + lam * b.speed_mps
+        a, b, lam, by_cycles = self._share(heading)
+        top = self.max_speed(heading)
         s = min(1.0, speed / top) if top > 0 else 0.0
         r = 0.0
         turn = None
@@ -111,7 +169,9 @@ class GaitLibrary:
             turn, r = self.turn_right, min(1.0, yaw_rate_dps / self.turn_right.yaw_rate_dps)
         if s + r > 1.0:
             s, r = s / (s + r), r / (s + r)
-        if self.blend == "parameters":
+        if by_cycles:
+            parts = [(s, self._cycle_choice(a, b, heading, cycle)), (1.0 - s - r, self.still)]
+        elif self.blend == "parameters":
             parts = [(s, interpolate(a, b, lam)), (1.0 - s - r, self.still)]
         else:
             parts = [(s * (1.0 - lam), a), (s * lam, b), (1.0 - s - r, self.still)]
