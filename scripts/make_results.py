@@ -19,8 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SLOT = str(Path(sys.executable).parent / "slot")
 KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml", "library.yaml")  # not logs
 # Commanded speeds (m/s) on the soft legs, inside the gait library's envelope (results/README.md says why).
-WALK = 0.025
-BACKWARD = 0.02
+WALK = 0.02
 CRAWL = 0.006
 OMNI = 0.015
 LATERAL = 0.015
@@ -104,7 +103,7 @@ RUNS = {
         "experiment=simulate",
         "plant=cosserat",
         "gait=backward",
-        f"gait.velocity=[-{BACKWARD},0]",
+        f"gait.velocity=[-{WALK},0]",
         "experiment.duration=30",
     ],
     "simulate_cosserat_lateral": [

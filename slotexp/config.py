@@ -310,6 +310,9 @@ class ControllerConfig:
     # gait_mpc: each step adds this fraction of the MPC's planned change of velocity (and yaw rate) to the gait command
     velocity_gain: float = num_field(0.02, lo=0.0, hi=1.0, unit="")
     yaw_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
+    # gait_mpc: the fraction of the legs' common normal-force offset (height) applied each step; the rest, and
+    # the legs' differences (attitude), are averaged over a gait cycle (slotexp/controllers/gait_mpc.py)
+    height_at_once: float = num_field(0.25, lo=0.0, hi=1.0, unit="")
     # how the two primitives bracketing a direction combine: whole cycles of one or the other, their
     # schedules mixed, or one primitive with their parameters interpolated (slotexp/locomotion/library.py)
     blend: str = choice_field("cycles", "cycles", "schedules", "parameters")

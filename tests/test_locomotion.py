@@ -115,10 +115,10 @@ def test_cycle_blend_alternates_whole_primitives_so_the_mean_velocity_points_whe
         total += w * p.speed_mps * np.array([np.cos(np.radians(p.heading_deg)), np.sin(np.radians(p.heading_deg))])
     assert np.degrees(np.arctan2(total[1], total[0])) == pytest.approx(45.0, abs=0.5)
     assert np.hypot(*total) / 200 == pytest.approx(along * 0.5, rel=0.01)
-    # near a primitive (within a quarter of the gap) the schedules are mixed by angle, as blend="schedules" does
-    near = lib.command(np.array([0.01, 0.01 * np.tan(np.radians(9.0))]), 0.0, 0)
+    # near a primitive (within a tenth of the gap) the schedules are mixed by angle, as blend="schedules" does
+    near = lib.command(np.array([0.01, 0.01 * np.tan(np.radians(4.5))]), 0.0, 0)
     weights = {p.name: w for w, p in near.parts}
-    assert weights["l"] / (weights["f"] + weights["l"]) == pytest.approx(0.1)
+    assert weights["l"] / (weights["f"] + weights["l"]) == pytest.approx(0.05)
 
 
 def test_search_cost_prefers_speed_along_the_heading_and_charges_drift() -> None:
