@@ -7,6 +7,7 @@ import pytest
 
 from slotexp.controllers import make_controller
 from slotexp.errors import ConfigError
+from slotexp.jobs import gait_search
 from slotexp.locomotion.library import GaitLibrary
 from slotexp.locomotion.openloop import GaitMetrics, run_gait
 from slotexp.locomotion.primitives import GaitStyle, Primitive, interpolate, mix, stance
@@ -169,6 +170,24 @@ def test_search_improves_on_its_starting_point_on_a_tiny_budget() -> None:
     start_cost = evaluate([x0])[0]
     best_cost, best_x = search(evaluate, x0, sigma0=0.2, popsize=6, max_evals=12, seed=3)
     assert best_cost < start_cost - 1.0, (start_cost, best_cost)  # at least 1 mm/s better, measured
+
+
+def test_the_search_verifies_a_mirror_image_as_it_stands_and_it_walks_the_mirrored_way() -> None:
+    cfg = load("plant=cosserat")
+    style_cfg = cfg.controller.library["walk"]
+    style = GaitStyle(style_cfg.frequency_hz, style_cfg.duty, style_cfg.sharpness)
+    seed = min((p for p in style_cfg.primitives if p.heading_deg is not None), key=lambda p: abs(p.heading_deg))
+    forward = Primitive.from_config(seed)
+    image = forward.mirrored("y")  # front and back swapped: its first leg's phase is no longer zero
+    assert image.phase[0] != 0.0
+    gait_search._init_worker(cfg, style)
+    ahead, back = (gait_search._evaluate((p, 2.0, 0.5)) for p in (forward, image))
+    # the torso, legs and friction are symmetric about the body y axis: the image walks the mirrored way
+    assert ahead["vx"] > 5.0
+    assert back["vx"] == pytest.approx(-ahead["vx"], rel=0.01) and back["vy"] == pytest.approx(ahead["vy"], abs=0.2)
+    # the same schedule shifted in time (what the search's vector keeps of it) meets other 30 Hz ticks
+    shifted = gait_search._evaluate((from_vector(to_vector(image, TOP), TOP), 2.0, 0.5))
+    assert abs(shifted["vx"] - back["vx"]) > 1.0
 
 
 @pytest.mark.parametrize("sign", [1.0, -1.0])
