@@ -20,6 +20,7 @@ SLOT = str(Path(sys.executable).parent / "slot")
 KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml", "library.yaml")  # not logs
 # Commanded speeds (m/s) on the soft legs, inside the gait library's envelope (results/README.md says why).
 WALK = 0.02
+WALK_FAST = 0.028
 CRAWL = 0.006
 OMNI = 0.015
 LATERAL = 0.015
@@ -84,6 +85,13 @@ RUNS = {
         "gait=walk",
         f"gait.velocity=[{WALK},0]",
         "experiment.duration=45",
+    ],
+    "simulate_cosserat_walk_fast": [  # near the top of the forward gait's envelope (31.7 mm/s open loop)
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        f"gait.velocity=[{WALK_FAST},0]",
+        "experiment.duration=30",
     ],
     "simulate_cosserat_crawl": [
         "experiment=simulate",
@@ -229,7 +237,7 @@ def install_library(searched: Path) -> None:
 
 def main(names: list[str]) -> None:
     timing_path = ROOT / "results" / "timing.json"
-    timing = json.loads(timing_path.read_text()) if timing_path.exists() else {}
+    timing: dict[str, dict] = {}
     known = [*RUNS, *SWEEPS, *BENCHES]
     unknown = [n for n in names if n not in known]
     if unknown:
@@ -259,7 +267,9 @@ def main(names: list[str]) -> None:
             shutil.copy2(run_dir / "actuation_calibrated.yaml", CALIBRATED)
         if name.startswith("gait_search_"):  # the gait controllers' library is these runs' output
             install_library(run_dir / "library.yaml")
-    timing_path.write_text(json.dumps(timing, indent=2) + "\n")
+        # re-read before writing, so that two make_results runs side by side (different names) keep both's times
+        latest = json.loads(timing_path.read_text()) if timing_path.exists() else {}
+        timing_path.write_text(json.dumps({**latest, name: timing[name]}, indent=2) + "\n")
 
 
 if __name__ == "__main__":
