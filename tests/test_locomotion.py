@@ -225,3 +225,22 @@ def test_gait_search_refuses_a_start_primitive_the_library_lacks() -> None:
     assert load("plant=cosserat", "experiment=gait_search", "experiment.start_from=walk_turn").experiment.start_from
     with pytest.raises(ConfigError, match="experiment.start_from = 'nope' is not a walk primitive"):
         load("plant=cosserat", "experiment=gait_search", "experiment.start_from=nope")
+
+
+def test_the_normal_force_offsets_drop_only_the_twist_the_plan_leaves_open() -> None:
+    from slotexp.controllers.gait_mpc import without_twist
+
+    rng = np.random.default_rng(4)
+    lever = np.array([[0.09, 0.07, -0.04], [-0.10, 0.06, -0.04], [-0.08, -0.07, -0.04], [0.10, -0.06, -0.04]])
+    a = np.vstack([np.ones(4), lever[:, 0], lever[:, 1]])  # net normal force, roll and pitch moments
+    # offsets that change the net force or moments (the plan's height and attitude) pass unchanged
+    planned = a.T @ rng.normal(size=3)
+    np.testing.assert_allclose(without_twist(planned, lever), planned, atol=1e-12)
+    # any offsets come out with the same net force and moments, and no twist is left to remove
+    offsets = rng.normal(size=4) * 10.0
+    out = without_twist(offsets, lever)
+    np.testing.assert_allclose(a @ out, a @ offsets, atol=1e-12)
+    np.testing.assert_allclose(without_twist(out, lever), out, atol=1e-12)
+    # on a rectangle the twist is the diagonal pattern (+, -, +, -): it is removed entirely
+    square = np.array([[0.1, 0.05, 0.0], [-0.1, 0.05, 0.0], [-0.1, -0.05, 0.0], [0.1, -0.05, 0.0]])
+    np.testing.assert_allclose(without_twist(np.array([1.0, -1.0, 1.0, -1.0]), square), 0.0, atol=1e-12)

@@ -22,7 +22,8 @@ asks for is used where the legs can give it:
 - **Normal forces.** Each leg's tendon is offset from the gait by
   ``(f_z - m g / 4) / a`` with ``a`` the force-to-tendon map's slope (eq. 11,
   fitted to the leg by ``experiment=calibrate``; ``experiment=legmap`` gives the
-  same slope at every root height): height and attitude as in the paper. The gait
+  same slope at every root height): height and attitude as in the paper, less the
+  plan's twist, which the plan does not determine (:func:`without_twist`). The gait
   heaves and rocks the body within each cycle, and that is how it walks (the leg
   that presses harder sticks): a controller that flattened it step by step would
   stop the robot. So the legs' differences (attitude) and most of their common
@@ -50,6 +51,16 @@ from ._gait import GaitController
 MAX_OFFSET_DEG = 30.0  # the normal-force correction stays a correction of the gait
 
 
+def without_twist(per_leg: np.ndarray, lever: np.ndarray) -> np.ndarray:
+    """``per_leg`` (4,) less its twist: the pattern of normal forces with no net force and no roll or
+    pitch moment about the CoM (for feet at ``lever`` (4, 3)), about (+, -, +, -) over the diagonals.
+    Four normal forces carry three conditions, so the MPC's plan (with R ~ 0) leaves this one
+    pattern to its solver's path; the legs' compliance decides it, not the plan."""
+    a = np.vstack([np.ones(4), lever[:, 0], lever[:, 1]])
+    twist = np.linalg.svd(a)[2][-1]  # unit vector spanning the null space of a
+    return per_leg - (per_leg @ twist) * twist
+
+
 @CONTROLLERS.register()
 class GaitMpcController(GaitController):
     def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
@@ -72,7 +83,7 @@ class GaitMpcController(GaitController):
         self.velocity = velocity * (min(1.0, top / speed) if speed > 0 else 1.0)
         limit = self.library.max_yaw_rate_dps
         self.yaw_rate = float(np.clip(self.yaw_rate + ctrl.yaw_gain * self.period * yaw_accel, -limit, limit))
-        offsets = (forces[:, 2] - self.weight / 4.0) / self.cfg.robot.actuation.slope_n_per_deg
+        offsets = without_twist((forces[:, 2] - self.weight / 4.0) / self.cfg.robot.actuation.slope_n_per_deg, lever)
         common = float(offsets.mean())
         at_once = ctrl.height_at_once * common
         self.cycle_offsets.append(offsets - at_once)
