@@ -237,7 +237,6 @@ def install_library(searched: Path) -> None:
 
 def main(names: list[str]) -> None:
     timing_path = ROOT / "results" / "timing.json"
-    timing: dict[str, dict] = {}
     known = [*RUNS, *SWEEPS, *BENCHES]
     unknown = [n for n in names if n not in known]
     if unknown:
@@ -256,7 +255,7 @@ def main(names: list[str]) -> None:
         else:
             print(f"== {name}: slot run {' '.join(RUNS[name])}", flush=True)
             subprocess.run([SLOT, "run", *RUNS[name], f"hydra.run.dir={run_dir}"], cwd=ROOT, check=True)
-        timing[name] = {"wall_s": round(time.perf_counter() - start, 1), "args": {**RUNS, **SWEEPS, **BENCHES}[name]}
+        entry = {"wall_s": round(time.perf_counter() - start, 1), "args": {**RUNS, **SWEEPS, **BENCHES}[name]}
         dest = ROOT / "results" / name
         shutil.rmtree(dest, ignore_errors=True)
         dest.mkdir(parents=True)
@@ -269,7 +268,7 @@ def main(names: list[str]) -> None:
             install_library(run_dir / "library.yaml")
         # re-read before writing, so that two make_results runs side by side (different names) keep both's times
         latest = json.loads(timing_path.read_text()) if timing_path.exists() else {}
-        timing_path.write_text(json.dumps({**latest, name: timing[name]}, indent=2) + "\n")
+        timing_path.write_text(json.dumps({**latest, name: entry}, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -119,32 +119,29 @@ class GaitLibrary:
         rel = np.radians(p.heading_deg - heading_deg)
         return p.speed_mps * float(np.sin(rel)), p.speed_mps * float(np.cos(rel))
 
-    def _share(self, heading_deg: float) -> tuple[Primitive, Primitive, float, bool]:
-        """The bracketing primitives, the share of the second, and whether it is a share of whole cycles
+    def _share(self, heading_deg: float) -> tuple[Primitive, Primitive, float, bool, float]:
+        """The bracketing primitives, the share of the second, whether it is a share of whole cycles
         (``blend="cycles"`` away from both primitives: the share whose mean velocity points along
-        ``heading_deg``) rather than of the schedules' weights (by angle)."""
+        ``heading_deg``) rather than of the schedules' weights (by angle), and the speed (m/s) along
+        ``heading_deg`` that this blend makes at full weight."""
         a, b, lam = self._bracket(heading_deg)
-        if self.blend != "cycles" or not NEAR < lam < 1.0 - NEAR:
-            return a, b, lam, False
-        across_a = self._across_along(a, heading_deg)[0]
-        across_b = self._across_along(b, heading_deg)[0]
-        if across_a * across_b < 0.0:
-            lam = across_a / (across_a - across_b)
-        return a, b, lam, True
+        if self.blend == "cycles" and NEAR < lam < 1.0 - NEAR:
+            (across_a, along_a), (across_b, along_b) = (self._across_along(p, heading_deg) for p in (a, b))
+            if across_a * across_b < 0.0:
+                lam = across_a / (across_a - across_b)
+            return a, b, lam, True, (1.0 - lam) * along_a + lam * along_b
+        return a, b, lam, False, (1.0 - lam) * a.speed_mps + lam * b.speed_mps
 
     def max_speed(self, heading_deg: float) -> float:
         """Speed (m/s) along this body-frame direction that the blend for it makes at full weight: the envelope."""
-        a, b, lam, by_cycles = self._share(heading_deg)
-        if by_cycles:
-            return (1.0 - lam) * self._across_along(a, heading_deg)[1] + lam * self._across_along(b, heading_deg)[1]
-        return (1.0 - lam) * a.speed_mps + lam * b.speed_mps
+        return self._share(heading_deg)[4]
 
     def _cycle_choice(self, a: Primitive, b: Primitive, heading_deg: float, cycle: int) -> Primitive:
         """``a`` or ``b`` for this cycle (decided at its start): the one that keeps the running sum of the
         chosen velocities across ``heading_deg`` nearer zero (error diffusion)."""
-        across_a = self._across_along(a, heading_deg)[0]
-        across_b = self._across_along(b, heading_deg)[0]
         if cycle != self._cycle:
+            across_a = self._across_along(a, heading_deg)[0]
+            across_b = self._across_along(b, heading_deg)[0]
             self._cycle = cycle
             self._second = abs(self._owed + across_b) < abs(self._owed + across_a)
             # bounded: a command that turns or a bracket that changes starts over within one cycle
@@ -162,8 +159,7 @@ class GaitLibrary:
         v = np.asarray(velocity_body, float)
         speed = float(np.hypot(v[0], v[1]))
         heading = float(np.degrees(np.arctan2(v[1], v[0])))
-        a, b, lam, by_cycles = self._share(heading)
-        top = self.max_speed(heading)
+        a, b, lam, by_cycles, top = self._share(heading)
         s = min(1.0, speed / top) if top > 0 else 0.0
         r = 0.0
         turn = None
