@@ -199,7 +199,7 @@ RUNS = {
 # Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
 HEADINGS = range(0, 360, 45)  # deg, world frame (the robot starts at zero yaw)
 SWEEPS = {
-    # The walk in 8 directions at 12 mm/s under gait_mpc: speed and heading error per direction.
+    # The walk in 8 directions at HEADING_SPEED under gait_mpc: speed and heading error per direction.
     "headings_cosserat": [
         "experiment=simulate",
         "plant=cosserat",
