@@ -88,6 +88,23 @@ def test_a_robot_set_down_below_its_height_starts_without_a_jump():
     assert np.linalg.norm(low.state()[9:12]) < 0.1  # no launch
 
 
+def test_a_tilted_initial_pose_leaves_every_leg_in_its_standing_shape():
+    # Table I's combined offsets put the front-right corner lowest and tilt its leg down: set down
+    # at once, its resting foot started ~25 mm in the ground and the contact folded the leg under
+    # the body (reach 144 mm against 250). Lowered onto the pose, every leg keeps its standing reach.
+    cfg = load("plant=cosserat")
+    robot = build_robot(cfg.robot)
+    level = CosseratPlant(cfg, robot, nominal_state(robot))
+    x0 = nominal_state(robot)
+    x0[0] = x0[1] = 0.05  # roll, pitch (rad)
+    x0[5] -= 0.005
+    tilted = CosseratPlant(cfg, robot, x0)
+    reach_level, reach_tilted = level.pos[:, -1, 0], tilted.pos[:, -1, 0]
+    np.testing.assert_allclose(reach_tilted, reach_level, atol=0.01)
+    np.testing.assert_allclose(tilted.state()[0:2], 0.05, atol=1e-9)  # released at the scenario's pose
+    assert tilted.state()[5] == pytest.approx(level.state()[5] - 0.005, abs=1e-9)
+
+
 def test_markers_follow_the_paper_nodes():
     _, plant = _plant()
     markers = plant.markers()

@@ -36,6 +36,14 @@ from . import PLANTS, TendonCommand
 
 SETTLE_S = 0.4  # s the legs get to settle under the held torso before a run starts
 SETTLE_ITERATIONS = 8  # ... in this many steps towards the servo angle that carries the weight
+LOWERING_MOVES = 25  # per settling step in the first half, in which the torso is lowered onto its initial pose
+
+
+def pose_between(start: np.ndarray, end: np.ndarray, s: float) -> np.ndarray:
+    """Torso position and quaternion (7,) a fraction ``s`` of the way between two poses given as
+    position and roll, pitch, yaw (6,)."""
+    pose = (1.0 - s) * np.asarray(start, dtype=float) + s * np.asarray(end, dtype=float)
+    return np.concatenate([pose[0:3], euler_to_quat(*pose[3:6])])
 
 
 @njit(cache=True)
@@ -301,11 +309,14 @@ class CosseratPlant:
             [np.sign(np.cos(self.yaw)) * lx / 2, np.sign(np.sin(self.yaw)) * ly / 2, np.full(4, -lz / 2)]
         )
         drop = m.rest_pos[0, 1] - m.rest_pos[-1, 1]
-        # torso placed so that the resting feet just touch the ground, plus the scenario's offset
+        # The torso starts level, with the resting feet just touching the ground; settling lowers it
+        # onto the scenario's offset pose (see _settle_legs).
         z0 = lz / 2 + drop + (x0[5] - robot.stance_height)
-        q0 = euler_to_quat(*x0[0:3])
-        rot = quat_to_rot(q0)
-        self.torso = np.concatenate([[x0[3], x0[4], z0], q0, x0[9:12], rot.T @ x0[6:9]])
+        self.start_pose = np.array([x0[3], x0[4], lz / 2 + drop, 0.0, 0.0, x0[2]])  # position, roll pitch yaw
+        self.target_pose = np.array([x0[3], x0[4], z0, *x0[0:3]])
+        self.torso = np.concatenate([pose_between(self.start_pose, self.target_pose, 0.0), x0[9:12], np.zeros(3)])
+        self.torso[10:13] = quat_to_rot(euler_to_quat(*x0[0:3])).T @ x0[6:9]  # body-frame angular velocity
+        rot = quat_to_rot(self.torso[3:7])
         self.pos = np.repeat(m.rest_pos[None], 4, axis=0).copy()
         corner_w = self.torso[0:3] + self.corners @ rot.T
         self.pos[:, :, 1] += (corner_w[:, 2] - m.rest_pos[0, 1])[:, None]
@@ -400,8 +411,13 @@ class CosseratPlant:
     def _settle_legs(self, seconds: float) -> None:
         """Put the robot down in equilibrium at its initial pose.
 
-        The torso is held at its initial pose, at rest, while the legs settle onto the
-        ground (a scenario's offsets can start the feet below it), and the servos take
+        The torso is held, at rest, while the legs settle onto the ground. It starts level
+        with the resting feet just touching and is lowered in small moves onto the
+        scenario's initial pose over the first half of the settling time: a pose whose
+        corner is lower or tilted down puts that leg's resting foot tens of millimetres
+        into the ground, and placed there at once the contact folded the leg under the
+        body (combined offsets: the front-right foot 144 mm from its root instead of
+        250 mm), a state no robot set down on its feet is in. The servos take
         the common angle at which the legs carry the robot's weight there (a few
         Newton steps on the total normal force, with the actuation map's slope), as a
         robot is powered up before it is let go: at zero tendon the legs cannot carry
@@ -414,9 +430,15 @@ class CosseratPlant:
         angle = float(tendon_angle_deg(np.array([weight / 4.0]), self.cfg.robot.actuation, top)[0])
         velocities = self.torso[7:13].copy()
         self.torso[7:13] = 0.0
-        for _ in range(SETTLE_ITERATIONS):
+        lowering = SETTLE_ITERATIONS // 2
+        for k in range(SETTLE_ITERATIONS):
             self.servo[:] = self.servo_cmd[:] = np.deg2rad(angle)
-            self._run(seconds / SETTLE_ITERATIONS, np.zeros(3), hold=True)
+            if k < lowering:  # in small moves, so that every leg deforms continuously onto the ground
+                for s in np.linspace(k, k + 1, LOWERING_MOVES + 1)[1:] / lowering:
+                    self.torso[0:7] = pose_between(self.start_pose, self.target_pose, float(s))
+                    self._run(seconds / SETTLE_ITERATIONS / LOWERING_MOVES, np.zeros(3), hold=True)
+            else:
+                self._run(seconds / SETTLE_ITERATIONS, np.zeros(3), hold=True)
             angle = float(np.clip(angle + (weight - self.out[:, O_N].sum()) / slope, 0.0, top))
         self.torso[7:13] = velocities
         self.time = 0.0
