@@ -244,3 +244,26 @@ def test_the_normal_force_offsets_drop_only_the_twist_the_plan_leaves_open() -> 
     # on a rectangle the twist is the diagonal pattern (+, -, +, -): it is removed entirely
     square = np.array([[0.1, 0.05, 0.0], [-0.1, 0.05, 0.0], [-0.1, -0.05, 0.0], [0.1, -0.05, 0.0]])
     np.testing.assert_allclose(without_twist(np.array([1.0, -1.0, 1.0, -1.0]), square), 0.0, atol=1e-12)
+
+
+def test_the_attitude_trim_lowers_the_high_corners_at_its_rate_and_holds_within_its_reach() -> None:
+    from slotexp.controllers.gait_mpc import MAX_TRIM_DEG, MM_PER_DEG
+
+    cfg = load("plant=cosserat", "controller.attitude_trim=0.5")
+    robot = build_robot(cfg.robot)
+    ctrl = make_controller(cfg, robot)
+    x = nominal_state(robot)
+    feet = x[3:6] + robot.feet_body
+    level = np.tile([0.0, 0.0, ctrl.weight / 4.0], (4, 1))  # a plan with no normal-force offsets
+    x[1] = -0.03  # nose up: the front corners (x > 0) sit high by 0.03 rad x their lever
+    ctrl.adjust(x, feet, level, None)
+    expected = -0.5 * ctrl.period * 1000.0 * 0.03 * robot.corners_body[:, 0] / MM_PER_DEG
+    np.testing.assert_allclose(ctrl.trim, expected, rtol=1e-12)
+    front = robot.corners_body[:, 0] > 0
+    assert np.all(ctrl.trim[front] < 0) and np.all(ctrl.trim[~front] > 0)
+    x[1], x[0] = 0.0, 0.03  # rolled left side up: the left legs (y > 0) wind out, the right ones in
+    for _ in range(2000):
+        ctrl.adjust(x, feet, level, None)
+    left = robot.corners_body[:, 1] > 0
+    np.testing.assert_allclose(ctrl.trim[left], -MAX_TRIM_DEG)
+    np.testing.assert_allclose(ctrl.trim[~left], MAX_TRIM_DEG)

@@ -34,6 +34,18 @@ asks for is used where the legs can give it:
   loop); at a 20 mm/s command the averaged height let it heave (CoM z RMSE 6.5 mm;
   2.1 mm at ``height_at_once`` 0.25, 2.7 mm at 1), while the 132-deg gait, which
   walks by heaving, made 13.0, 13.5, 8.2 and 2.5 mm/s at 0, 0.25, 0.5 and 1.
+  The average runs over ``offset_cycles`` cycles, two by default: a one-cycle
+  average passes a mode that alternates from cycle to cycle, and with the height
+  part applied at once the loop walked in it (on the 15 mm/s walk, cycles of 17
+  and 13.5 mm/s in turn; two cycles: 15.7 every cycle).
+- **Attitude trim.** The MPC's rigid-body model has no stance stiffness: a body
+  that sits tilted on its compliant legs looks to it like one that a small moment
+  pulse would level, so its plan corrects attitude only transiently, and a gait
+  that walks 2 deg nose-up stays so (the planned front and rear normal forces
+  agreed within 0.01 N). An integral trim levels the stance: each leg's tendon
+  moves at ``attitude_trim`` (1/s) times the corner height by which the measured
+  roll and pitch put its root off level, in degrees of tendon (``MM_PER_DEG``,
+  from the leg maps), and holds what it has reached.
 """
 
 from __future__ import annotations
@@ -49,6 +61,11 @@ from . import CONTROLLERS
 from ._gait import GaitController
 
 MAX_OFFSET_DEG = 30.0  # the normal-force correction stays a correction of the gait
+MAX_TRIM_DEG = 15.0  # the attitude trim's reach, either way
+# corner (root) height per degree of tendon at the standing load, free foot: the leg maps' normal force
+# (results/legmap/legmap_free.csv) rises 0.069 N/deg with the tendon and falls 74 N/m with the root height
+# at 80 deg and 23 mm, so holding the load, a degree raises the root 0.069 / 74 m
+MM_PER_DEG = 0.93
 
 
 def without_twist(per_leg: np.ndarray, lever: np.ndarray) -> np.ndarray:
@@ -65,10 +82,11 @@ def without_twist(per_leg: np.ndarray, lever: np.ndarray) -> np.ndarray:
 class GaitMpcController(GaitController):
     def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
         super().__init__(cfg, robot)
-        # each leg's normal-force offset, averaged over one gait cycle (see the module docstring)
+        # each leg's normal-force offset, averaged over offset_cycles gait cycles (see the module docstring)
         self.cycle_offsets: deque[np.ndarray] = deque(
-            maxlen=max(1, round(1.0 / (self.style.frequency_hz * self.period)))
+            maxlen=max(1, round(cfg.controller.offset_cycles / (self.style.frequency_hz * self.period)))
         )
+        self.trim = np.zeros(4)  # each leg's attitude trim, deg of tendon
 
     def adjust(self, x: np.ndarray, feet: np.ndarray, forces: np.ndarray, solution) -> np.ndarray:
         ctrl = self.cfg.controller
@@ -87,4 +105,10 @@ class GaitMpcController(GaitController):
         common = float(offsets.mean())
         at_once = ctrl.height_at_once * common
         self.cycle_offsets.append(offsets - at_once)
-        return np.clip(at_once + np.mean(self.cycle_offsets, axis=0), -MAX_OFFSET_DEG, MAX_OFFSET_DEG)
+        corners = self.robot.corners_body
+        off_level_mm = 1000.0 * (x[0] * corners[:, 1] - x[1] * corners[:, 0])  # roll lifts +y, pitch lowers +x
+        self.trim = np.clip(
+            self.trim - ctrl.attitude_trim * self.period * off_level_mm / MM_PER_DEG, -MAX_TRIM_DEG, MAX_TRIM_DEG
+        )
+        offset = at_once + np.mean(self.cycle_offsets, axis=0) + self.trim
+        return np.clip(offset, -MAX_OFFSET_DEG, MAX_OFFSET_DEG)

@@ -37,11 +37,13 @@ from ..errors import ConfigError
 from .primitives import GaitStyle, Primitive, interpolate
 
 BLENDS = ("cycles", "schedules", "parameters")
-# blend="cycles": within this fraction of the gap between two primitives (about 4.5 deg of 45), mix their
+# blend="cycles": within this fraction of the gap between two primitives (about 11 deg of 45), mix their
 # schedules instead, so that a small steering correction near a primitive does not interrupt it with whole
-# cycles of a neighbour (measured, 8 headings at 15 mm/s and the walk at 20: 0.1 keeps every heading >= 12.5 mm/s
-# within 3 deg; 0.25 left 135 and 225 deg at 9 mm/s, where a 14 % schedule mix spoiled the 132-deg gait)
-NEAR = 0.1
+# cycles of a neighbour. Measured on Table I (soft plant, 15 mm/s): at 0.1 a lateral command of 3-4 mm/s on the
+# forward walk inserted a -44-deg cycle every few cycles, each dropping the body 10-15 mm and pitching it 10 deg,
+# and Pitch never settled; at 0.25 all six settle. (0.25 once spoiled 135 and 225 deg, with a library whose
+# diagonal gait walked at 132 deg: those headings are now within 1 deg of a primitive.)
+NEAR = 0.25
 MIN_SEPARATION_DEG = 10.0  # of two translating primitives closer than this in heading, the faster is kept
 
 
