@@ -315,8 +315,8 @@ class ControllerConfig:
     height_at_once: float = num_field(0.25, lo=0.0, hi=1.0, unit="")
     offset_cycles: int = num_field(2, lo=1, hi=8, unit="cycles")
     # gait_mpc: rate (1/s) of the integral trim that levels the stance: each leg's tendon moves by the corner
-    # height the measured roll and pitch put it off by (slotexp/controllers/gait_mpc.py); 0 turns it off
-    attitude_trim: float = num_field(0.5, lo=0.0, hi=10.0, unit="1/s")
+    # height the measured roll and pitch put it off by (slotexp/controllers/gait_mpc.py); 0 (default) turns it off
+    attitude_trim: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s")
     # how the two primitives bracketing a direction combine: whole cycles of one or the other, their
     # schedules mixed, or one primitive with their parameters interpolated (slotexp/locomotion/library.py)
     blend: str = choice_field("cycles", "cycles", "schedules", "parameters")
