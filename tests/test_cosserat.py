@@ -149,3 +149,35 @@ def test_plant_servo_never_exceeds_342_deg_per_s() -> None:
     plant.step(TendonCommand(np.full(4, 116.0)), 1 / 30)
     moved = np.rad2deg(plant.servo) - before
     assert np.all(moved <= 342.0 / 30 + 1e-9) and np.all(moved > 0.5 * 342.0 / 30)  # loaded: below no-load speed
+
+
+def test_the_default_step_walks_as_the_converged_reference_on_a_short_run():
+    # The closed-loop walk at the default step against the implicit step at 2.5e-5 s (slot bench leg's
+    # reference): the torso stays within the bench's stated tolerances.
+    from slotexp.bench._accuracy import TOLERANCE, Case, compare, run_case, with_plant, within
+
+    cfg = load("plant=cosserat")
+    case = Case("walk", "baseline", (0.02, 0.0), 3.0)
+    reference = run_case(with_plant(cfg, "implicit", 2.5e-5), case)
+    result = compare(run_case(cfg, case), reference)
+    assert within(result), (result, TOLERANCE)
+    assert result["max_dxy_mm"] > 0.0  # a different step is a different run: the comparison sees it
+
+
+def test_the_accuracy_comparison_measures_speed_and_differences_analytically():
+    from slotexp.bench._accuracy import Trace, compare, gait_speed, real_time_factor
+
+    t = np.arange(300) / 30.0
+    x = np.zeros((300, 12))
+    x[:, 3], x[:, 4] = 0.012 * t, 0.016 * t  # 20 mm/s along a 3-4-5 line
+    run = Trace(t, x, np.full((300, 4), 5.0), np.full(300, 1.0 / 300))
+    assert gait_speed(run) == pytest.approx(0.02, rel=1e-12)
+    assert real_time_factor(run) == pytest.approx(10.0)
+    same = compare(run, run)
+    assert same["speed_error_fraction"] == 0.0 and same["max_dxy_mm"] == 0.0 and same["rms_dnormal_n"] == 0.0
+    other = Trace(t, x.copy(), np.full((300, 4), 5.5), run.step_wall_s)
+    other.x[:, 5] += 0.001  # 1 mm higher
+    other.x[:, 1] += np.radians(0.5)
+    diff = compare(other, run)
+    assert diff["max_dz_mm"] == pytest.approx(1.0) and diff["max_dattitude_deg"] == pytest.approx(0.5)
+    assert diff["rms_dnormal_n"] == pytest.approx(0.5) and diff["max_dxy_mm"] == 0.0

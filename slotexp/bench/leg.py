@@ -13,6 +13,12 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
 - ``closed_loop``: a 25 s walk on ``plant=cosserat`` (4 legs, torso, MPC, no log),
   after a 0.2 s warm-up run that compiles or loads every kernel (``warmup_s``);
   median/p99 wall time per 33 ms MPC step, ``ratio_vs_baseline`` = real-time factor.
+- ``accuracy``: the closed-loop cases of :mod:`._accuracy` (walk, Table I's combined,
+  a standing push) at each plant setting (integrator, step), each against the
+  implicit step at ``REFERENCE_DT``; the speed figures as for ``closed_loop``, and in
+  ``extra`` the gait speed, the torso's and the feet's differences from the
+  reference. The implicit step at twice ``REFERENCE_DT`` shows the reference is
+  converged.
 
 ``ratio_vs_baseline`` for leg rows = PyElastica's time per step / this row's
 (>1 is faster than PyElastica); without PyElastica the baseline is ``symplectic``.
@@ -29,8 +35,11 @@ from ..config import SlotConfig
 from ..soft.integrators import LegSim, stable_dt
 from ..soft.statics import clamped_leg, set_tendon
 from . import BenchRow, register
+from ._accuracy import CASES, compare, real_time_factor, run_case, with_plant, within
 
 TRANSIENT_S = 0.2
+REFERENCE_DT = 2.5e-5  # s, implicit: the converged closed-loop reference
+ACCURACY_DTS = (5e-5, 1e-4, 2e-4, 5e-4)  # s, implicit steps compared with it (plus symplectic at its own)
 
 
 def _loaded_leg(cfg: SlotConfig) -> LegSim:
@@ -202,4 +211,21 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
             },
         )
     )
+    settings = [("implicit", dt) for dt in ACCURACY_DTS] + [("symplectic", h_sym)]
+    for case in CASES:
+        reference = run_case(with_plant(cfg, "implicit", REFERENCE_DT), case)
+        for integrator, dt in settings:
+            trace = run_case(with_plant(cfg, integrator, dt), case)
+            result = compare(trace, reference)
+            default = integrator == cfg.plant.integrator and dt == cfg.sim.dt
+            rows.append(
+                BenchRow(
+                    "accuracy",
+                    f"{case.name}, {integrator} dt={dt:.3g}" + (" (default)" if default else ""),
+                    float(np.median(trace.step_wall_s)) * 1e6,
+                    float(np.quantile(trace.step_wall_s, 0.99)) * 1e6,
+                    real_time_factor(trace),
+                    {**result, "within_tolerance": within(result), "reference": f"implicit dt={REFERENCE_DT:g}"},
+                )
+            )
     return rows

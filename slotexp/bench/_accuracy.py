@@ -1,0 +1,138 @@
+"""Closed-loop accuracy of a soft-plant setting (integrator, step) against a converged reference.
+
+A faster plant only counts at equal accuracy, and what users measure on the soft
+robot is closed-loop behaviour: gait speed, the torso's path and attitude, the
+feet's forces. So each setting runs the same closed-loop cases as the reference
+(implicit at a step well below the default) and is compared on:
+
+- gait speed: the mean planar speed after the start-up (net displacement over
+  time), as a fraction of the reference's;
+- the torso: max |dz|, max |dxy| and max |d roll|, |d pitch| over the run;
+- the feet: the RMS difference of the four normal forces.
+
+Stick-slip walking is sensitive to small differences (a foot that slips one
+sample earlier), so the torso's path drifts apart slowly even between two accurate
+settings; gait speed is the robust figure, the path differences bound how far
+apart the runs get. The reference's own convergence is shown by the same
+comparison of the reference step against half of it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import SlotConfig
+from ..simulation import run_closed_loop
+
+SPEED_FROM_S = 2.0  # gait speed is measured after this (the start-up)
+# what a setting may differ from the reference by and still count as accurate (the gait speed as in the
+# soft-plant speed targets; the torso well inside the paper's 5 mm CoM z RMSE and the gait's own swing)
+TOLERANCE = {"speed_error_fraction": 0.02, "max_dz_mm": 2.0, "max_dxy_mm": 3.0, "max_dattitude_deg": 1.5}
+
+
+@dataclass(frozen=True)
+class Case:
+    """One closed-loop run: a scenario, a commanded velocity (m/s, body frame) and a duration (s)."""
+
+    name: str
+    scenario: str
+    velocity: tuple[float, float]
+    duration: float
+
+
+CASES = (
+    Case("walk", "baseline", (0.02, 0.0), 10.0),  # the forward walk at 20 mm/s
+    Case("combined", "combined", (0.015, 0.0), 8.0),  # Table I's combined perturbation, push at 5 s
+    Case("standing push", "push_side", (0.0, 0.0), 6.0),  # a 0.4 N s sideways push at 3 s, standing
+)
+
+
+@dataclass
+class Trace:
+    """What a run is compared on, per MPC step."""
+
+    t: np.ndarray
+    x: np.ndarray  # (n, 12) torso state
+    normal: np.ndarray  # (n, 4) foot normal forces, N
+    step_wall_s: np.ndarray  # (n,) wall time of each MPC step (plant and controller)
+
+    @property
+    def wall_s(self) -> float:
+        return float(self.step_wall_s.sum())
+
+
+class _TraceSink:
+    def __init__(self) -> None:
+        self.t: list[float] = []
+        self.x: list[np.ndarray] = []
+        self.normal: list[np.ndarray] = []
+
+    def write(self, topic: str, t: float, message) -> None:
+        if topic == "/state":
+            self.t.append(t)
+            self.x.append(np.concatenate([message[k] for k in ("rpy", "p", "omega", "v")]))
+        elif topic == "/legs/contact":
+            self.normal.append(np.asarray(message["normal_n"], float).copy())
+
+    def write_pose(self, *args) -> None:
+        pass
+
+
+def with_plant(cfg: SlotConfig, integrator: str, dt: float) -> SlotConfig:
+    """``cfg`` with the soft plant's integrator and step replaced."""
+    return dataclasses.replace(
+        cfg, plant=dataclasses.replace(cfg.plant, integrator=integrator), sim=dataclasses.replace(cfg.sim, dt=dt)
+    )
+
+
+def run_case(cfg: SlotConfig, case: Case) -> Trace:
+    """One case on ``cfg``'s plant settings."""
+    run_cfg = dataclasses.replace(cfg, gait=dataclasses.replace(cfg.gait, velocity=list(case.velocity)))
+    sink = _TraceSink()
+    stamps = [time.perf_counter()]
+
+    def tick(done: int, total: int) -> None:
+        stamps.append(time.perf_counter())
+
+    run_closed_loop(run_cfg, run_cfg.scenarios[case.scenario], case.duration, sink, tick)
+    return Trace(np.asarray(sink.t), np.asarray(sink.x), np.asarray(sink.normal), np.diff(stamps))
+
+
+def gait_speed(trace: Trace) -> float:
+    """Mean planar speed (m/s) after the start-up: net displacement over time."""
+    k = int(np.searchsorted(trace.t, SPEED_FROM_S))
+    span = trace.t[-1] - trace.t[k]
+    return float(np.linalg.norm(trace.x[-1, 3:5] - trace.x[k, 3:5]) / span)
+
+
+def compare(run: Trace, ref: Trace) -> dict[str, float]:
+    """How far ``run`` is from ``ref`` (same case): the module docstring's figures."""
+    n = min(len(run.t), len(ref.t))
+    dx = run.x[:n] - ref.x[:n]
+    ref_speed = gait_speed(ref)
+    return {
+        "speed_mm_s": 1000.0 * gait_speed(run),
+        "speed_ref_mm_s": 1000.0 * ref_speed,
+        "speed_error_fraction": gait_speed(run) / ref_speed - 1.0 if ref_speed > 1e-3 else float("nan"),
+        "max_dz_mm": 1000.0 * float(np.max(np.abs(dx[:, 5]))),
+        "max_dxy_mm": 1000.0 * float(np.max(np.linalg.norm(dx[:, 3:5], axis=1))),
+        "max_dattitude_deg": float(np.degrees(np.max(np.abs(dx[:, 0:2])))),
+        "rms_dnormal_n": float(np.sqrt(np.mean((run.normal[:n] - ref.normal[:n]) ** 2))),
+        "wall_s": run.wall_s,
+        "real_time_factor": real_time_factor(run),
+    }
+
+
+def real_time_factor(trace: Trace) -> float:
+    """Simulated seconds per wall second (the plant and the controller, no logging)."""
+    return float(len(trace.t) * (trace.t[1] - trace.t[0])) / trace.wall_s
+
+
+def within(result: dict[str, float]) -> bool:
+    """Whether a :func:`compare` result is inside :data:`TOLERANCE` (a speed error that is NaN, where the
+    reference hardly moves, is not judged)."""
+    return all(not abs(result[key]) > limit for key, limit in TOLERANCE.items())
