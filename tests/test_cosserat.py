@@ -181,3 +181,29 @@ def test_the_accuracy_comparison_measures_speed_and_differences_analytically():
     diff = compare(other, run)
     assert diff["max_dz_mm"] == pytest.approx(1.0) and diff["max_dattitude_deg"] == pytest.approx(0.5)
     assert diff["rms_dnormal_n"] == pytest.approx(0.5) and diff["max_dxy_mm"] == 0.0
+
+
+def test_a_batch_steps_each_robot_exactly_as_it_steps_alone():
+    from slotexp.plants.cosserat import CosseratBatch
+
+    cfg = load("plant=cosserat")
+    robot = build_robot(cfg.robot)
+    x0 = nominal_state(robot)
+    tilted = x0.copy()
+    tilted[0] = 0.04
+    commands = [np.array([90.0, 60.0, 70.0, 100.0]), np.array([40.0, 110.0, 80.0, 50.0])]
+    alone = [CosseratPlant(cfg, robot, x) for x in (x0, tilted)]
+    batch = CosseratBatch([CosseratPlant(cfg, robot, x) for x in (x0, tilted)])
+    for k in range(6):
+        for plant, command in zip(alone, commands):
+            plant.step(TendonCommand(command + 3.0 * k), 1 / 30)
+        batch.step(np.array(commands) + 3.0 * k, 1 / 30)
+    for plant, twin in zip(alone, batch.plants):
+        np.testing.assert_array_equal(twin.state(), plant.state())
+        np.testing.assert_array_equal(twin.feet(), plant.feet())
+        np.testing.assert_array_equal(twin.telemetry()["/legs/contact"]["normal_n"], plant.out[:, 4])
+        assert twin.time == plant.time
+    assert not np.allclose(batch.plants[0].state(), batch.plants[1].state())  # two robots, two motions
+    twin = batch.plants[1]
+    twin.step(TendonCommand(commands[1]), 1 / 30)  # a batched robot still steps alone, on its own row
+    np.testing.assert_array_equal(batch.stacked["torso"][1], twin.torso)

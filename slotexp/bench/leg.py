@@ -4,7 +4,7 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
 
 - ``symplectic`` and ``implicit``: microseconds per leg per step for a loaded leg in
   stance (gravity, tendon at 80 deg, ground contact, friction), N from the config,
-  symplectic at 0.8 x its stable step, implicit at 1e-4 s. ``extra`` holds the cost
+  symplectic at 0.8 x its stable step, implicit at ``sim.dt``. ``extra`` holds the cost
   per simulated second and the tip error against a symplectic reference at a 10x
   smaller step, over the same 0.2 s transient.
 - ``pyelastica`` (if installed): a straight PyElastica rod with as many elements,
@@ -13,6 +13,11 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
 - ``closed_loop``: a 25 s walk on ``plant=cosserat`` (4 legs, torso, MPC, no log),
   after a 0.2 s warm-up run that compiles or loads every kernel (``warmup_s``);
   median/p99 wall time per 33 ms MPC step, ``ratio_vs_baseline`` = real-time factor.
+- ``batch``: B = 1, 8 and 64 robots stepped together (:class:`CosseratBatch`, one
+  thread per robot over every core), each with its own tendon schedule (the
+  forward walk's, each at its own phase), for ``BATCH_S`` simulated seconds at the
+  configured step; ``ratio_vs_baseline`` = robot-seconds simulated per wall second,
+  and B robots stepped one after another in one thread in ``extra``.
 - ``accuracy``: the closed-loop cases of :mod:`._accuracy` (walk, Table I's combined,
   a standing push) at each plant setting (integrator, step), each against the
   implicit step at ``REFERENCE_DT``; the speed figures as for ``closed_loop``, and in
@@ -29,15 +34,19 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from ..config import SlotConfig
+from ..plants import TendonCommand
 from ..soft.integrators import LegSim, stable_dt
 from ..soft.statics import clamped_leg, set_tendon
 from . import BenchRow, register
 from ._accuracy import CASES, compare, real_time_factor, run_case, with_plant, within
 
 TRANSIENT_S = 0.2
+BATCH_SIZES = (1, 8, 64)
+BATCH_S = 2.0  # s simulated per robot
 REFERENCE_DT = 2.5e-5  # s, implicit: the converged closed-loop reference
 ACCURACY_DTS = (5e-5, 1e-4, 2e-4, 5e-4)  # s, implicit steps compared with it (plus symplectic at its own)
 
@@ -134,7 +143,7 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
 
     sim = _loaded_leg(cfg)
     h_sym = 0.8 * stable_dt(sim.model, cfg.robot.contact.stiffness)
-    h_imp = 1e-4
+    h_imp = cfg.sim.dt  # the configured step (plant=cosserat: 2e-4 s)
     timings = {}
     for name, h, per_block in (("symplectic", h_sym, 2000), ("implicit", h_imp, 500)):
         leg = _loaded_leg(cfg)
@@ -211,6 +220,7 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
             },
         )
     )
+    rows += _batch_rows(cfg)
     settings = [("implicit", dt) for dt in ACCURACY_DTS] + [("symplectic", h_sym)]
     for case in CASES:
         reference = run_case(with_plant(cfg, "implicit", REFERENCE_DT), case)
@@ -228,4 +238,59 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
                     {**result, "within_tolerance": within(result), "reference": f"implicit dt={REFERENCE_DT:g}"},
                 )
             )
+    return rows
+
+
+def _batch_rows(cfg: SlotConfig) -> list[BenchRow]:
+    """Robot-seconds per wall second for B robots in one batch, and B robots one after another."""
+    from ..locomotion.primitives import GaitStyle, Primitive, mix
+    from ..plants import nominal_state
+    from ..plants.cosserat import CosseratBatch, CosseratPlant
+    from ..robot import build_robot
+
+    robot = build_robot(cfg.robot)
+    style_cfg = cfg.controller.library[cfg.gait.style]
+    style = GaitStyle(style_cfg.frequency_hz, style_cfg.duty, style_cfg.sharpness)
+    walk = max((Primitive.from_config(p) for p in style_cfg.primitives), key=lambda p: p.speed_mps)
+    top = cfg.robot.leg.tendon_max_deg
+    period = 1.0 / cfg.mpc.rate_hz
+    steps = int(round(BATCH_S / period))
+
+    def schedules(n: int, k: int) -> np.ndarray:  # (n, 4): robot b runs the gait shifted by b / n of a cycle
+        return np.array([mix(style, [(1.0, walk)], k * period * style.frequency_hz + b / n, top) for b in range(n)])
+
+    def plants(n: int) -> list[CosseratPlant]:
+        return [CosseratPlant(cfg, robot, nominal_state(robot)) for _ in range(n)]
+
+    CosseratBatch(plants(2)).step(schedules(2, 0), period)  # compile or load the batch kernel first
+    rows = []
+    for n in BATCH_SIZES:
+        batch = CosseratBatch(plants(n))
+        per_step = np.empty(steps)
+        for k in range(steps):
+            start = time.perf_counter()
+            batch.step(schedules(n, k), period)
+            per_step[k] = time.perf_counter() - start
+        alone = plants(min(n, 8))  # one after another, one thread (at most 8: it scales linearly)
+        start = time.perf_counter()
+        for k in range(steps):
+            for plant, command in zip(alone, schedules(len(alone), k)):
+                plant.step(TendonCommand(command), period)
+        alone_rate = len(alone) * BATCH_S / (time.perf_counter() - start)
+        rate = n * BATCH_S / per_step.sum()
+        rows.append(
+            BenchRow(
+                "batch",
+                f"B={n} robots, {cfg.plant.integrator} dt={cfg.sim.dt:.3g}",
+                float(np.median(per_step)) * 1e6,
+                float(np.quantile(per_step, 0.99)) * 1e6,
+                rate,
+                {
+                    "robot_seconds_per_wall_second": rate,
+                    "one_after_another_robot_seconds_per_wall_second": alone_rate,
+                    "threads": numba.get_num_threads(),
+                    "simulated_s_per_robot": BATCH_S,
+                },
+            )
+        )
     return rows

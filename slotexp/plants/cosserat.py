@@ -20,6 +20,7 @@ Out of plane we assume:
 from __future__ import annotations
 
 import numpy as np
+from numba import prange
 
 from ..actuation import tendon_angle_deg
 from ..body import euler_to_quat, quat_mul, quat_to_euler, quat_to_rot
@@ -278,6 +279,108 @@ def coupled_steps(
     return n_steps
 
 
+@njit(cache=True, parallel=True)
+def batch_steps(
+    torso,
+    torso_mass,
+    inertia,
+    inertia_inv,
+    gravity,
+    corners,
+    yaw,
+    rest_theta0,
+    pos,
+    vel,
+    theta,
+    omega,
+    rest_pos,
+    l0,
+    voronoi,
+    dtheta0,
+    ea,
+    ga,
+    ei,
+    mass,
+    inertia_el,
+    par,
+    servo,
+    servo_cmd,
+    servo_par,
+    pulley,
+    free0,
+    prev_corner,
+    f_ext,
+    mu_lat,
+    v_eps,
+    implicit,
+    h,
+    n_steps,
+    normal,
+    out,
+    force,
+    moment,
+    band,
+    rhs,
+    grad_l,
+    cth,
+    sth,
+    work,
+    reaction,
+    done,
+):
+    """:func:`coupled_steps` for B robots of one model at once, one thread per robot: every per-robot
+    array has a leading axis of length B; ``done`` (B,) receives each robot's completed steps."""
+    for b in prange(torso.shape[0]):
+        done[b] = coupled_steps(
+            torso[b],
+            torso_mass,
+            inertia,
+            inertia_inv,
+            gravity,
+            corners,
+            yaw,
+            rest_theta0,
+            pos[b],
+            vel[b],
+            theta[b],
+            omega[b],
+            rest_pos,
+            l0,
+            voronoi,
+            dtheta0,
+            ea,
+            ga,
+            ei,
+            mass,
+            inertia_el,
+            par[b],
+            servo[b],
+            servo_cmd[b],
+            servo_par,
+            pulley,
+            free0[b],
+            prev_corner[b],
+            f_ext[b],
+            mu_lat,
+            v_eps,
+            implicit,
+            h,
+            n_steps,
+            normal[b],
+            out[b],
+            force[b],
+            moment[b],
+            band[b],
+            rhs[b],
+            grad_l[b],
+            cth[b],
+            sth[b],
+            work[b],
+            reaction[b],
+            False,
+        )
+
+
 @PLANTS.register()
 class CosseratPlant:
     """Torso + four soft legs behind the :class:`slotexp.plants.Plant` interface."""
@@ -507,3 +610,108 @@ class CosseratPlant:
         rot = quat_to_rot(self.torso[3:7])
         self.torso[7:10] += np.asarray(linear, dtype=float) / self.torso_mass
         self.torso[10:13] += self.inertia_inv @ (rot.T @ np.asarray(angular, dtype=float))
+
+
+# each robot's own arrays, in the order the kernels take them; the batch stacks them along a first axis
+_OWN = ("torso", "pos", "vel", "theta", "omega", "par", "servo", "servo_cmd", "free0", "prev_corner", "normal")
+_OWN_AFTER_WORK = ("reaction",)
+
+
+class CosseratBatch:
+    """B soft robots of one config stepped together in one compiled call, one thread per robot.
+
+    For searches and Monte Carlo runs: each robot has its own tendon commands and
+    state, and they advance in parallel (numba ``prange``, as many threads as
+    ``NUMBA_NUM_THREADS``, every core by default). The robots are ordinary
+    :class:`CosseratPlant` objects, set down as usual; the batch moves their state
+    into stacked arrays and leaves each plant's attributes as views of its row, so
+    ``state()``, ``feet()`` and ``telemetry()`` keep working on every one of them.
+    Stepped in a batch or alone, a robot follows the same arithmetic.
+    """
+
+    def __init__(self, plants: list[CosseratPlant]) -> None:
+        if not plants:
+            raise ValueError("a batch needs at least one plant")
+        first = plants[0]
+        if any(p.cfg is not first.cfg and (p.cfg.robot != first.cfg.robot or p.dt != first.dt) for p in plants):
+            raise ValueError("every plant in a batch must share the robot and sim.dt of the first")
+        if any(p.implicit != first.implicit for p in plants):
+            raise ValueError("every plant in a batch must use the same integrator")
+        self.plants = plants
+        self.stacked: dict[str, np.ndarray] = {}
+        for name in _OWN + _OWN_AFTER_WORK:
+            self.stacked[name] = np.stack([getattr(p, name) for p in plants])
+            for b, p in enumerate(plants):
+                setattr(p, name, self.stacked[name][b])
+        self.work = tuple(np.stack([p._work[k] for p in plants]) for k in range(len(first._work)))
+        for b, p in enumerate(plants):
+            p._work = tuple(w[b] for w in self.work)
+        self.out = np.stack([p.out for p in plants])
+        for b, p in enumerate(plants):
+            p.out = self.out[b]
+        self.f_ext = np.zeros((len(plants), 3))
+        self.done = np.zeros(len(plants), dtype=np.int64)
+
+    def __len__(self) -> int:
+        return len(self.plants)
+
+    def step(self, tendon_deg: np.ndarray, period: float) -> None:
+        """Advance every robot ``period`` with its servos tracking ``tendon_deg`` (B, 4), deg."""
+        tendon_deg = np.asarray(tendon_deg, dtype=float)
+        if tendon_deg.shape != (len(self), 4):
+            raise ValueError(f"tendon_deg must be ({len(self)}, 4), not {tendon_deg.shape}")
+        first = self.plants[0]
+        self.stacked["servo_cmd"][:] = np.deg2rad(tendon_deg)
+        n = max(1, int(round(period / first.dt)))
+        h = period / n
+        m = first.model
+        st = self.stacked
+        batch_steps(
+            st["torso"],
+            first.torso_mass,
+            first.inertia,
+            first.inertia_inv,
+            first.cfg.sim.gravity,
+            first.corners,
+            first.yaw,
+            float(m.rest_theta[0]),
+            st["pos"],
+            st["vel"],
+            st["theta"],
+            st["omega"],
+            m.rest_pos,
+            m.l0,
+            m.voronoi,
+            m.dtheta0,
+            m.ea,
+            m.ga,
+            m.ei,
+            m.mass,
+            m.inertia,
+            st["par"],
+            st["servo"],
+            st["servo_cmd"],
+            first.servo_par,
+            first.cfg.robot.leg.pulley_radius,
+            st["free0"],
+            st["prev_corner"],
+            self.f_ext,
+            first.cfg.robot.contact.friction,
+            first.cfg.robot.contact.slip_velocity,
+            first.implicit,
+            h,
+            n,
+            st["normal"],
+            self.out,
+            *self.work,
+            st["reaction"],
+            self.done,
+        )
+        for b, p in enumerate(self.plants):
+            p.time += self.done[b] * h
+            if self.done[b] < n or not np.all(np.isfinite(p.torso)):
+                limit = stable_dt(m, first.cfg.robot.contact.stiffness)
+                raise DivergenceError(
+                    f"robot {b} of the batch diverged at t = {p.time:.4g} s with sim.dt = {h:.3g} s; the explicit "
+                    f"stability limit of this leg is about {limit:.3g} s: lower sim.dt or use plant.integrator=implicit"
+                )
