@@ -46,6 +46,8 @@ class Case:
 
 CASES = (
     Case("walk", "baseline", (0.02, 0.0), 10.0),  # the forward walk at 20 mm/s
+    # the 225-deg walk: a diagonal gait that heaves and tilts, more sensitive to the step than the walk
+    Case("diagonal walk", "baseline", (-0.0106, -0.0106), 10.0),
     Case("combined", "combined", (0.015, 0.0), 8.0),  # Table I's combined perturbation, push at 5 s
     Case("standing push", "push_side", (0.0, 0.0), 6.0),  # a 0.4 N s sideways push at 3 s, standing
 )

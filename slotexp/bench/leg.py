@@ -143,7 +143,7 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
 
     sim = _loaded_leg(cfg)
     h_sym = 0.8 * stable_dt(sim.model, cfg.robot.contact.stiffness)
-    h_imp = cfg.sim.dt  # the configured step (plant=cosserat: 2e-4 s)
+    h_imp = cfg.sim.dt  # the configured step (plant=cosserat: 1e-4 s)
     timings = {}
     for name, h, per_block in (("symplectic", h_sym, 2000), ("implicit", h_imp, 500)):
         leg = _loaded_leg(cfg)
