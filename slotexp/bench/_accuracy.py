@@ -29,6 +29,7 @@ from ..config import SlotConfig
 from ..simulation import run_closed_loop
 
 SPEED_FROM_S = 2.0  # gait speed is measured after this (the start-up)
+GAIT_SPEED = 0.005  # m/s: a reference slower than this is not walking (a standing push), its speed is not judged
 # what a setting may differ from the reference by and still count as accurate (the gait speed as in the
 # soft-plant speed targets; the torso well inside the paper's 5 mm CoM z RMSE and the gait's own swing)
 TOLERANCE = {"speed_error_fraction": 0.02, "max_dz_mm": 2.0, "max_dxy_mm": 3.0, "max_dattitude_deg": 1.5}
@@ -119,7 +120,7 @@ def compare(run: Trace, ref: Trace) -> dict[str, float]:
     return {
         "speed_mm_s": 1000.0 * gait_speed(run),
         "speed_ref_mm_s": 1000.0 * ref_speed,
-        "speed_error_fraction": gait_speed(run) / ref_speed - 1.0 if ref_speed > 1e-3 else float("nan"),
+        "speed_error_fraction": gait_speed(run) / ref_speed - 1.0 if ref_speed > GAIT_SPEED else float("nan"),
         "max_dz_mm": 1000.0 * float(np.max(np.abs(dx[:, 5]))),
         "max_dxy_mm": 1000.0 * float(np.max(np.linalg.norm(dx[:, 3:5], axis=1))),
         "max_dattitude_deg": float(np.degrees(np.max(np.abs(dx[:, 0:2])))),
@@ -136,5 +137,5 @@ def real_time_factor(trace: Trace) -> float:
 
 def within(result: dict[str, float]) -> bool:
     """Whether a :func:`compare` result is inside :data:`TOLERANCE` (a speed error that is NaN, where the
-    reference hardly moves, is not judged)."""
+    reference does not walk, is not judged)."""
     return all(not abs(result[key]) > limit for key, limit in TOLERANCE.items())
