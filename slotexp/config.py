@@ -427,11 +427,22 @@ def _check_scalar(path: str, value: Any, meta: dict) -> None:
         raise ConfigError(f"{path} = {value!r} is out of range: must be {_range_text(meta)}")
 
 
+def _check_finite(path: str, value: Any) -> None:
+    """Every number in a config is finite, declared range or not (offsets, impulses, list entries):
+    NaN or infinity would run and give NaN states and finite-looking metrics."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{path} = {value!r} is not a finite number: give a finite value")
+    if isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            _check_finite(f"{path}[{i}]", item)
+
+
 def _walk(obj: Any, path: str) -> None:
     if dataclasses.is_dataclass(obj):
         for f in dataclasses.fields(obj):
             value = getattr(obj, f.name)
             sub = f"{path}.{f.name}" if path else f.name
+            _check_finite(sub, value)
             meta = dict(f.metadata)
             if "choices" in meta:
                 choices = meta["choices"]() if callable(meta["choices"]) else meta["choices"]

@@ -155,6 +155,10 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     (["experiment=validate"], ["experiment.reference"]),
     (["--cfg", "job", "gait=nope"], ["gait", "nope"]),
     (["--cfg", "job", "mpc.horizon=abc"], ["mpc.horizon", "abc"]),
+    # non-finite numbers anywhere, declared range or not (they ran and gave NaN states, finite-looking metrics)
+    (["scenarios.roll.offset.roll=inf"], ["scenarios.roll.offset.roll", "finite"]),
+    (["scenarios.baseline.offset.vz=nan"], ["scenarios.baseline.offset.vz", "finite"]),
+    (["scenarios.combined.impulses.0.linear=[0,nan,0]"], ["scenarios.combined.impulses[0].linear[1]", "finite"]),
 ]
 
 
