@@ -10,7 +10,7 @@ can keep catching ``ValueError``.
 
 from __future__ import annotations
 
-__all__ = ["UserError", "ConfigError", "LogReadError", "TrajectoryError", "DivergenceError"]
+__all__ = ["UserError", "ConfigError", "LogReadError", "TrajectoryError", "DivergenceError", "RunFailedError"]
 
 
 class UserError(Exception):
@@ -35,3 +35,8 @@ class TrajectoryError(UserError, ValueError):
 
 class DivergenceError(UserError, RuntimeError):
     """A simulation blew up; the message names ``sim.dt`` and the stability limit."""
+
+
+class RunFailedError(UserError, RuntimeError):
+    """A run that produced nothing usable: the controller never found a plan, or the state went non-finite.
+    The log written so far stays readable; the message says which settings to look at."""

@@ -20,6 +20,7 @@ import numpy as np
 
 from .config import ScenarioConfig, SlotConfig
 from .controllers import ControlStep, make_controller
+from .errors import RunFailedError
 from .metrics import stage_cost
 from .plants import Plant, command_for, make_plant, nominal_state
 from .reference import desired_path, reference
@@ -103,6 +104,11 @@ def run_closed_loop(
             check_interrupt()
             t = k * period
             x_true = plant.state()
+            if not np.all(np.isfinite(x_true)):
+                raise RunFailedError(
+                    f"the state went non-finite at t = {t:.4g} s ({scenario.name}): the log up to there is readable; "
+                    f"check the scenario's offsets and impulses and the plant's sim.dt"
+                )
             x_meas = (
                 x_true + rng.normal(0.0, scenario.noise.measurement_sigma, 12)
                 if scenario.noise.measurement_sigma > 0
@@ -134,6 +140,11 @@ def run_closed_loop(
             done = k + 1
             if progress is not None:
                 progress(done, n_steps)
+    if done > 0 and controller.infeasible_steps == done:
+        raise RunFailedError(
+            f"the MPC found no feasible plan in any of the {done} steps of {scenario.name} (the fallback forces were "
+            f"applied throughout): check mpc.f_max, mpc.f_min_stance, the gait's stance legs and solver.time_limit_s"
+        )
     return RunSummary(
         scenario=scenario.name,
         steps=done,

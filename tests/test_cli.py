@@ -410,3 +410,35 @@ def test_multirun_sweeps_solvers_with_joblib(tmp_path: Path) -> None:
         assert not log.truncated
         assert log.metadata["run"]["solver"] == solver
         assert yaml.safe_load(log.metadata["config"]["yaml"])["solver"]["name"] == solver
+
+
+# --------------------------------------------------------------------------- a controller that never works
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [["mpc.f_max=0.1"], ["solver.time_limit_s=1e-9"]],
+    ids=["f_max below the weight", "no time to solve"],
+)
+def test_a_run_whose_mpc_never_succeeds_fails_with_one_line_and_a_readable_log(
+    tmp_path: Path, overrides: list[str]
+) -> None:
+    from mcap.reader import make_reader
+
+    run_dir = tmp_path / "run"
+    proc = slot(
+        "run", "experiment=simulate", "experiment.duration=1", *overrides, f"hydra.run.dir={run_dir}", cwd=tmp_path
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("error: ")]
+    assert len(errors) == 1 and "no feasible plan in any of the 30 steps" in errors[0], proc.stderr
+    assert proc.stderr.rstrip().splitlines()[-1] == errors[0]  # the progress bar before it, nothing after
+    log = run_dir / "logs" / "walk.mcap"
+    stats = read_log(log).topics["/mpc/stats"]
+    assert len(stats) == 30 and not stats["success"].astype(bool).any()
+    with log.open("rb") as fh:
+        assert sum(1 for _ in make_reader(fh).iter_messages()) > 0
+    forces = read_log(log).topics["/forces"]
+    if overrides == ["mpc.f_max=0.1"]:  # the fallback before any success respects the force limit
+        assert forces[[f"applied.{i}.2" for i in range(4)]].to_numpy().max() <= 0.1 + 1e-12

@@ -2,7 +2,9 @@
 
 When a solve is infeasible or fails, the last feasible input is applied and the
 step is counted (Algorithm 1, lines 32-34). Before any solve has succeeded the
-"last feasible input" is the static stance: m g / 4 straight up on every leg.
+"last feasible input" is the static stance, m g / 4 straight up on every leg,
+within the configured force limit ``mpc.f_max`` (a limit below m g / 4 cannot hold
+the robot up; a run whose MPC never succeeds fails, :func:`slotexp.simulation.run_closed_loop`).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ class MpcController:
         self.period = 1.0 / cfg.mpc.rate_hz
         self.mpc = make_mpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
         self.weight = robot.mass * cfg.sim.gravity
-        self.last_feasible = np.tile([0.0, 0.0, self.weight / 4.0], (4, 1))
+        self.last_feasible = np.tile([0.0, 0.0, min(self.weight / 4.0, cfg.mpc.f_max)], (4, 1))
         self.infeasible_steps = 0
         self.steps = 0
 

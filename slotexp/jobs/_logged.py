@@ -7,6 +7,7 @@ import multiprocessing as mp
 import os
 import queue
 import subprocess
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -72,6 +73,12 @@ def run_logged(
                 "infeasible_steps": str(summary.infeasible_steps),
                 "wall_time_s": f"{summary.wall_time_s:.3f}",
             },
+        )
+    if summary.infeasible_steps:
+        print(
+            f"warning: {scenario.name}: {summary.infeasible_steps} of {summary.steps} MPC steps were infeasible or "
+            f"failed; the last feasible forces were applied (/mpc/stats in {log_path.name})",
+            file=sys.stderr,
         )
     return summary
 
