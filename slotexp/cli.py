@@ -10,7 +10,9 @@ from inside a job.
 from __future__ import annotations
 
 import itertools
+import os
 import sys
+import tempfile
 from pathlib import Path
 
 import typer
@@ -57,6 +59,31 @@ app = typer.Typer(
 def fail(message: str) -> None:
     typer.echo(f"error: {message}", err=True)
     raise SystemExit(EXIT_USER_ERROR)
+
+
+def check_output_dir(path: str | Path, what: str) -> None:
+    """Fail with one line, before any work, if ``path`` cannot be an output directory: it is empty or a
+    file, or nothing can be created in it or in its first existing ancestor (tried, then removed)."""
+    if str(path).strip() == "":
+        fail(f"{what} is empty: give a directory")
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        fail(f"{what} = {path} is a file, not a directory: give a directory")
+    ancestor = path.absolute()
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".slot-write-check-", dir=ancestor))
+    except OSError:
+        fail(f"{what} = {path}: cannot create anything in {ancestor}: choose a directory you can write to")
+
+
+def _check_hydra_dirs(overrides: list[str]) -> None:
+    """``hydra.run.dir`` / ``hydra.sweep.dir`` given on the command line: checked before Hydra starts."""
+    for o in overrides:
+        key, _, value = o.lstrip("+").partition("=")
+        if key in ("hydra.run.dir", "hydra.sweep.dir"):
+            check_output_dir(value, key)
 
 
 def register_schemas() -> None:
@@ -117,6 +144,9 @@ def precheck(
     from omegaconf.errors import OmegaConfBaseException
 
     user = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
+    for o in user:
+        if o.lstrip("+~").startswith("="):
+            fail(f"{o!r} has no key: write key=value, e.g. mpc.horizon=10")
     try:
         parsed = OverridesParser.create().parse_overrides(user)
     except HydraException as exc:
@@ -201,6 +231,7 @@ def run(ctx: typer.Context) -> None:
     overrides, multirun, info = _split(args)
     if not info:
         precheck(overrides, multirun)
+        _check_hydra_dirs(overrides)
     register_schemas()
     sys.argv = ["slot", *args]
     main_fn = hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")(_hydra_task)
@@ -271,6 +302,7 @@ def hardware(
         overrides.append("dry_run=true")
     if not info:
         precheck(overrides, False, HARDWARE_CONFIG, HARDWARE_GROUPS, load_hardware_config)
+        _check_hydra_dirs(overrides)
     register_schemas()
     sys.argv = ["slot", *args]
     main_fn = hydra.main(config_path=str(CONF_DIR), config_name=HARDWARE_CONFIG, version_base="1.3")(_hardware_task)
@@ -313,6 +345,7 @@ def bench(
         fail(f"unknown bench component {unknown[0]!r}: choose from {', '.join(components.names())}")
     configs = {name: compose_config([*components.get(name).overrides, *overrides]) for name in names}
     out_dir = out or Path("experiments") / "bench" / _dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    check_output_dir(out_dir, "--out")  # before the measurements, not after
     rows = []
     for name in names:
         rows += components.get(name).measure(configs[name], out_dir)

@@ -517,6 +517,19 @@ def validate(cfg: SlotConfig) -> SlotConfig:
     return cfg
 
 
+MIN_RUN_STEPS = 2  # a closed-loop run's metrics need two samples at least
+
+
+def check_run_length(cfg: SlotConfig, duration: float, key: str = "experiment.duration") -> None:
+    """A closed-loop run of ``duration`` seconds must hold at least two MPC steps."""
+    shortest = MIN_RUN_STEPS / cfg.mpc.rate_hz
+    if round(duration * cfg.mpc.rate_hz) < MIN_RUN_STEPS:
+        raise ConfigError(
+            f"{key} = {duration:g} s is shorter than {MIN_RUN_STEPS} MPC steps ({shortest:.3g} s at mpc.rate_hz = "
+            f"{cfg.mpc.rate_hz:g}): give at least {shortest:.3g} s"
+        )
+
+
 def check_scenario(cfg: SlotConfig, name: str, key: str) -> None:
     """``key`` names scenario ``name``: it must be one of ``cfg.scenarios``."""
     if name not in cfg.scenarios:

@@ -159,6 +159,10 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     (["scenarios.roll.offset.roll=inf"], ["scenarios.roll.offset.roll", "finite"]),
     (["scenarios.baseline.offset.vz=nan"], ["scenarios.baseline.offset.vz", "finite"]),
     (["scenarios.combined.impulses.0.linear=[0,nan,0]"], ["scenarios.combined.impulses[0].linear[1]", "finite"]),
+    # values the schema accepted but the run could not use (they printed tracebacks)
+    (["experiment=simulate", "experiment.duration=0.01"], ["experiment.duration = 0.01", "0.0667 s"]),
+    (["experiment=perturb", "experiment.duration=0.01"], ["experiment.duration = 0.01", "0.0667 s"]),
+    (["=5"], ["'=5'", "key=value"]),
 ]
 
 
@@ -442,3 +446,16 @@ def test_a_run_whose_mpc_never_succeeds_fails_with_one_line_and_a_readable_log(
     forces = read_log(log).topics["/forces"]
     if overrides == ["mpc.f_max=0.1"]:  # the fallback before any success respects the force limit
         assert forces[[f"applied.{i}.2" for i in range(4)]].to_numpy().max() <= 0.1 + 1e-12
+
+
+@pytest.mark.parametrize("where", ["a file", "/proc", "empty"])
+def test_an_output_directory_that_cannot_be_written_is_refused_before_any_work(tmp_path: Path, where: str) -> None:
+    target = {"a file": tmp_path / "file", "/proc": Path("/proc/slot-run"), "empty": ""}[where]
+    if where == "a file":
+        target.write_text("not a directory")
+    proc = slot("run", "experiment=simulate", "experiment.duration=0.1", f"hydra.run.dir={target}", cwd=tmp_path)
+    assert_one_line_error(proc, "hydra.run.dir")
+    assert not (tmp_path / "logs").exists() and not (tmp_path / ".hydra").exists()  # nothing written here
+    if where != "empty":  # bench checks its --out before measuring, not after
+        bench = slot("bench", "mpc", "--out", str(target), cwd=tmp_path, timeout=60)
+        assert_one_line_error(bench, "--out")

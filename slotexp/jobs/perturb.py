@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import SlotConfig, check_scenario, choice_field, num_field
+from ..config import SlotConfig, check_run_length, check_scenario, choice_field, num_field
 from ..errors import ConfigError
 from ..metrics import cycle_mean_cost
 from ..runlog import RunData, find_logs, load_run
@@ -34,6 +34,7 @@ class PerturbExperiment:
     cost_average: str = choice_field("step", "step", "gait_cycle")
 
     def check(self, cfg: SlotConfig) -> None:
+        check_run_length(cfg, self.duration)
         if self.cost_average == "gait_cycle":
             gait_period_steps(cfg)
         if not self.scenarios:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import SlotConfig, check_scenario, num_field
+from ..config import SlotConfig, check_run_length, check_scenario, num_field
 from ..metrics import rmse
 from ..runlog import RunData, find_logs, load_run
 from . import EXPERIMENTS, Experiment
@@ -26,6 +26,7 @@ class SimulateExperiment:
     measure_from_s: float = num_field(2.0, lo=0.0, unit="s")  # speed and heading are measured after this
 
     def check(self, cfg: SlotConfig) -> None:
+        check_run_length(cfg, self.duration)
         check_scenario(cfg, self.scenario, "experiment.scenario names")
 
 

@@ -28,7 +28,7 @@ from ..config import SlotConfig
 from ..errors import DivergenceError
 from ..jit import njit
 from ..robot import RobotModel
-from ..soft.integrators import implicit_once, stable_dt, symplectic_once
+from ..soft.integrators import divergence_message, implicit_once, stable_dt, symplectic_once
 from ..soft.loads import rest_free_length
 from ..soft.params import O_DIV, O_F, O_FX, O_FZ, O_M, O_N, O_T, OUT, leg_params
 from ..soft.rod import LegModel, build_leg
@@ -601,9 +601,16 @@ class CosseratPlant:
         if done < n or not np.all(np.isfinite(self.torso)):
             limit = stable_dt(m, self.cfg.robot.contact.stiffness)
             raise DivergenceError(
-                f"the soft-leg simulation diverged at t = {self.time:.4g} s with sim.dt = {h:.3g} s "
-                f"({self.cfg.plant.integrator}); the explicit stability limit of this leg is about {limit:.3g} s: "
-                f"lower sim.dt or use plant.integrator=implicit"
+                divergence_message(
+                    "the soft-leg simulation",
+                    self.time,
+                    h,
+                    self.cfg.plant.integrator,
+                    limit,
+                    ("sim.dt", "plant.integrator"),
+                    "the scenario's offsets and impulses",
+                    self.dt,
+                )
             )
 
     def apply_impulse(self, linear: np.ndarray, angular: np.ndarray) -> None:
@@ -712,6 +719,14 @@ class CosseratBatch:
             if self.done[b] < n or not np.all(np.isfinite(p.torso)):
                 limit = stable_dt(m, first.cfg.robot.contact.stiffness)
                 raise DivergenceError(
-                    f"robot {b} of the batch diverged at t = {p.time:.4g} s with sim.dt = {h:.3g} s; the explicit "
-                    f"stability limit of this leg is about {limit:.3g} s: lower sim.dt or use plant.integrator=implicit"
+                    divergence_message(
+                        f"robot {b} of the batch",
+                        p.time,
+                        h,
+                        first.cfg.plant.integrator,
+                        limit,
+                        ("sim.dt", "plant.integrator"),
+                        "its tendon commands",
+                        first.dt,
+                    )
                 )

@@ -500,6 +500,43 @@ def step_implicit(
     _set_root(pos, vel, root)
 
 
+def divergence_message(
+    what: str,
+    t: float,
+    h: float,
+    integrator: str,
+    explicit_limit: float,
+    keys: tuple[str, str],
+    loads: str,
+    configured: float | None = None,
+) -> str:
+    """One line for a blown-up simulation that names the step and integrator actually used and a fix that
+    changes something: ``keys`` are the config keys of the step and of the integrator, ``loads`` what
+    else could have driven it, ``configured`` the step the config asked for if ``h`` differs from it (a
+    period that is not a whole number of steps is split into equal shorter ones)."""
+    step_key, integrator_key = keys
+    used = (
+        f"{h:.3g} s"
+        if configured is None or abs(configured - h) <= 1e-12
+        else f"{configured:.3g} s, steps of {h:.3g} s"
+    )
+    head = f"{what} diverged at t = {t:.4g} s with {step_key} = {used} ({integrator})"
+    if integrator != "implicit" and h > explicit_limit:
+        fix = (
+            f"the symplectic step's stability limit for this leg is about {explicit_limit:.3g} s: lower {step_key} "
+            f"below it or use {integrator_key}=implicit"
+        )
+    elif integrator != "implicit":
+        fix = (
+            f"the step is below the symplectic stability limit ({explicit_limit:.3g} s), so the loads drove it: "
+            f"check {loads}, or use {integrator_key}=implicit"
+        )
+    else:
+        fix = f"the implicit step has no stability limit, so the loads or too coarse a step drove it: check {loads}"
+        fix += f", or lower {step_key}"
+    return f"{head}; {fix}"
+
+
 def stable_dt(model: LegModel, k_contact: float = 0.0) -> float:
     """Largest stable symplectic-Euler step: 2 / omega_max of M^-1 K at rest (contact on every node).
 
@@ -591,9 +628,15 @@ class LegSim:
         if self.out[O_DIV] > 0.0:
             limit = stable_dt(m, self.par[P_K] if self.par[P_GROUND] > 0.5 else 0.0)
             raise DivergenceError(
-                f"the leg simulation diverged at t = {self.time:.4g} s with leg_load.dt = {h:.3g} s "
-                f"({integrator}); the explicit stability limit for this leg is about {limit:.3g} s: "
-                f"lower leg_load.dt or use leg_load.integrator=implicit"
+                divergence_message(
+                    "the leg simulation",
+                    self.time,
+                    h,
+                    integrator,
+                    limit,
+                    ("leg_load.dt", "leg_load.integrator"),
+                    "leg_load.tip_force, leg_load.tip_moment and leg_load.root_height",
+                )
             )
 
     def energy(self) -> float:
