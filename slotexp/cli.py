@@ -13,7 +13,9 @@ import itertools
 import os
 import sys
 import tempfile
+import types
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -83,7 +85,8 @@ def _check_hydra_dirs(overrides: list[str]) -> None:
     for o in overrides:
         key, _, value = o.lstrip("+").partition("=")
         if key in ("hydra.run.dir", "hydra.sweep.dir"):
-            check_output_dir(value, key)
+            quoted = len(value) >= 2 and value[0] == value[-1] and value[0] in "'\""
+            check_output_dir(value[1:-1] if quoted else value, key)
 
 
 def register_schemas() -> None:
@@ -128,6 +131,42 @@ def _split(args: list[str]) -> tuple[list[str], bool, bool]:
     return overrides, multirun, info
 
 
+def unknown_key(key: str, root: type, experiment: type | None) -> str | None:
+    """The complaint for a dotted override key that names no field of the schema (with the closest field
+    as a suggestion), or None when it names one or leads where the schema cannot tell (Any, a leaf).
+    A dict accepts any key (scenario names), a list an index."""
+    import dataclasses
+    import difflib
+    import typing
+
+    tp: Any = root
+    parts = key.split(".")
+    for i, part in enumerate(parts):
+        origin = typing.get_origin(tp)
+        if origin is dict:
+            tp = typing.get_args(tp)[1]
+            continue
+        if origin is list:
+            if not part.isdigit():
+                return None
+            tp = typing.get_args(tp)[0]
+            continue
+        if not (isinstance(tp, type) and dataclasses.is_dataclass(tp)):
+            return None
+        hints = typing.get_type_hints(tp)
+        if part not in hints:
+            close = difflib.get_close_matches(part, list(hints), n=1)
+            prefix = ".".join(parts[:i])
+            if close:
+                return f"unknown key {key} (did you mean {'.'.join([*parts[:i], close[0]])}?)"
+            return f"unknown key {key}: {prefix or 'the config'} has {', '.join(sorted(hints))}"
+        tp = experiment if (i == 0 and part == "experiment") else hints[part]
+        if typing.get_origin(tp) in (typing.Union, types.UnionType):
+            args = [a for a in typing.get_args(tp) if a is not type(None)]
+            tp = args[0] if len(args) == 1 else Any
+    return None
+
+
 def _override_text(o, value: str) -> str:
     key = o.key_or_group + (f"@{o.package}" if o.package else "")
     prefix = {"ADD": "+", "FORCE_ADD": "++", "DEL": "~"}.get(o.type.name, "")
@@ -135,7 +174,12 @@ def _override_text(o, value: str) -> str:
 
 
 def precheck(
-    overrides: list[str], multirun: bool, config_name: str = "config", groups: tuple[str, ...] = GROUPS, loader=None
+    overrides: list[str],
+    multirun: bool,
+    config_name: str = "config",
+    groups: tuple[str, ...] = GROUPS,
+    loader=None,
+    root: type | None = None,
 ) -> None:
     """Compose and validate every combination the run would launch; fail with one line."""
     from hydra import compose, initialize_config_dir
@@ -143,15 +187,22 @@ def precheck(
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    user = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
-    for o in user:
+    for o in overrides:
+        if not o.strip():
+            fail("an argument is empty (an empty '' on the command line?): remove it, or write key=value")
         if o.lstrip("+~").startswith("="):
             fail(f"{o!r} has no key: write key=value, e.g. mpc.horizon=10")
+        key, _, value = o.partition("=")
+        if not value.isascii() and not (value.startswith(("'", '"')) and value.endswith(value[0])):
+            quoted = f"{key}='{value}'"
+            fail(f'{o}: a value with non-ASCII characters must be quoted for Hydra: write "{quoted}"')
+    user = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
     try:
         parsed = OverridesParser.create().parse_overrides(user)
     except HydraException as exc:
         fail(f"cannot parse override: {str(exc).splitlines()[0]}")
     choices: list[list[str]] = []
+    _check_keys(parsed, groups, root)
     for o in parsed:
         if o.is_sweep_override():
             if not multirun:
@@ -180,6 +231,39 @@ def precheck(
                 fail(str(exc))
             except (OmegaConfBaseException, ValueError, TypeError) as exc:
                 fail(_compose_message(exc))
+        hydra_overrides = [o for o in overrides if o.lstrip("+~").startswith("hydra") and "," not in o]
+        if hydra_overrides:  # Hydra's own settings (launcher, run dir): composed with the first combination
+            from hydra.conf import HydraConf
+
+            for o in hydra_overrides:
+                key = o.lstrip("+~").split("=")[0]
+                problem = unknown_key(key[len("hydra.") :], HydraConf, None) if key.startswith("hydra.") else None
+                if problem:
+                    fail(problem.replace("unknown key ", "unknown key hydra.").replace("mean ", "mean hydra."))
+            first = next(iter(itertools.product(*choices)), ())
+            try:
+                compose(config_name, overrides=[*first, *hydra_overrides], return_hydra_config=True)
+            except (HydraException, OmegaConfBaseException) as exc:
+                fail(_compose_message(exc))
+
+
+def _check_keys(parsed: list, groups: tuple[str, ...], root: type | None) -> None:
+    """Every ``key=value`` and ``+key=value`` names a field of the schema (Hydra's own hint, "use
+    +key=value", would add a key that nothing reads)."""
+    from .config import SlotConfig
+    from .jobs import EXPERIMENTS
+
+    chosen = [o.value() for o in parsed if o.key_or_group == "experiment" and isinstance(o.value(), str)]
+    experiment = None
+    if chosen and chosen[0] in EXPERIMENTS.names():
+        experiment = EXPERIMENTS.get(chosen[0]).schema
+    for o in parsed:
+        key = o.key_or_group
+        if "/" in key or key.split("@")[0] in groups or o.is_delete():
+            continue
+        problem = unknown_key(key, root or SlotConfig, experiment)
+        if problem:
+            fail(problem)
 
 
 def _compose_message(exc: BaseException) -> str:
@@ -188,7 +272,11 @@ def _compose_message(exc: BaseException) -> str:
     if exc.__cause__ is not None:
         parts.append(str(exc.__cause__))
     lines = [ln.strip() for p in parts for ln in p.splitlines() if ln.strip()]
-    keep = [ln for ln in lines if not ln.startswith(("object_type", "full_key", "Set the environment"))]
+    keep = [
+        ln
+        for ln in lines
+        if not ln.startswith(("object_type", "full_key", "Set the environment", "Config search path", "provider="))
+    ]
     text = "; ".join(dict.fromkeys(keep))
     return text.replace("Error merging override ", "bad override ")
 
@@ -301,7 +389,9 @@ def hardware(
         args.append("dry_run=true")
         overrides.append("dry_run=true")
     if not info:
-        precheck(overrides, False, HARDWARE_CONFIG, HARDWARE_GROUPS, load_hardware_config)
+        from .hardware.config import HardwareSlotConfig
+
+        precheck(overrides, False, HARDWARE_CONFIG, HARDWARE_GROUPS, load_hardware_config, HardwareSlotConfig)
         _check_hydra_dirs(overrides)
     register_schemas()
     sys.argv = ["slot", *args]

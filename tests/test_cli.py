@@ -163,6 +163,16 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     (["experiment=simulate", "experiment.duration=0.01"], ["experiment.duration = 0.01", "0.0667 s"]),
     (["experiment=perturb", "experiment.duration=0.01"], ["experiment.duration = 0.01", "0.0667 s"]),
     (["=5"], ["'=5'", "key=value"]),
+    # errors that point the right way: the key the user meant, not Hydra's "+key" (which nothing would read)
+    (["mpc.horizonn=10"], ["unknown key mpc.horizonn", "did you mean mpc.horizon?"]),
+    (["+mpc.horizonn=10"], ["unknown key mpc.horizonn", "did you mean mpc.horizon?"]),
+    (["gaits=walk"], ["unknown key gaits", "did you mean gait?"]),
+    (["hydra.rundir=x"], ["unknown key hydra.rundir", "did you mean hydra.run?"]),
+    (["hydra.launcher.n_jobs=abc"], ["hydra.launcher.n_jobs=abc"]),
+    (["hydra/launcher=jobllib"], ["jobllib", "joblib"]),
+    ([""], ["empty"]),
+    (["experiment.scenario=bäseline"], ["must be quoted", "experiment.scenario='bäseline'"]),
+    (["sim.dt=1e-9"], ["sim.dt", ">= 1e-06"]),
 ]
 
 
