@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
 import sys
 import tempfile
 import types
@@ -293,10 +294,12 @@ def _hydra_task(cfg) -> None:
         run_experiment(load_config(cfg), out_dir, OmegaConf.to_yaml(cfg))
     except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
-    except KeyboardInterrupt:
-        typer.echo(f"interrupted: the logs written so far are valid and readable in {out_dir}", err=True)
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        word = "terminated" if signum == signal.SIGTERM else "interrupted"
+        typer.echo(f"{word}: the logs written so far are valid and readable in {out_dir}", err=True)
         typer.echo(str(out_dir))
-        raise SystemExit(130) from None
+        raise SystemExit(128 + signum) from None
     typer.echo(str(out_dir))
 
 
@@ -491,12 +494,22 @@ def summarize(
     typer.echo(str(multirun_dir))
 
 
+def _terminate(signum, frame) -> None:
+    """SIGTERM (timeout, SLURM, systemd) as Ctrl-C: unwind, close what is open, exit 143."""
+    from .simulation import Interrupted
+
+    raise Interrupted(signum)
+
+
 def main() -> None:
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         app()
-    except KeyboardInterrupt:
-        typer.echo("interrupted", err=True)
-        raise SystemExit(130) from None
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        typer.echo("terminated" if signum == signal.SIGTERM else "interrupted", err=True)
+        raise SystemExit(128 + signum) from None
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -220,7 +220,7 @@ class Recorder:
         path: str | Path,
         metadata: Mapping[str, Mapping[str, str]] | None = None,
         *,
-        chunk_size: int = 64 * 1024,
+        chunk_size: int = 48 * 1024,  # a SIGKILL loses at most the open chunk: ~0.9 s of an ideal-plant run
         profile: str = "slotexp",
     ) -> None:
         self.path = Path(path)

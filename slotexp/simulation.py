@@ -42,31 +42,50 @@ class RunSummary:
     wall_time_s: float
 
 
+class Interrupted(KeyboardInterrupt):
+    """A run stopped by a signal between two MPC steps; ``signum`` says which (SIGINT or SIGTERM)."""
+
+    def __init__(self, signum: int = signal.SIGINT) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+    def __reduce__(self):  # crosses process boundaries with its signal (a pool worker's run)
+        return (Interrupted, (self.signum,))
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # Ctrl-C; timeout, SLURM, systemd
+
+
 @contextmanager
 def interrupts_between_steps() -> Iterator[Callable[[], None]]:
-    """Take Ctrl-C (SIGINT) between MPC steps, never inside a compiled kernel.
+    """Take Ctrl-C (SIGINT) and SIGTERM between MPC steps, never inside a compiled kernel.
 
     Python raises KeyboardInterrupt wherever the interpreter happens to be; inside a
     numba kernel's call back into Python it surfaces as a ``SystemError`` instead,
-    which no handler expects. While this is active, SIGINT only sets a flag, and the
-    function it yields raises KeyboardInterrupt at the next step boundary (at most
-    one MPC step later). Outside the main thread (or where SIGINT is ignored) it does
-    nothing.
+    which no handler expects, and SIGTERM's default ends the process with the log
+    unfinished. While this is active, either signal only sets a flag, and the
+    function it yields raises :class:`Interrupted` at the next step boundary (at
+    most one MPC step later), so the caller's ``with`` blocks close their logs.
+    Outside the main thread it does nothing; a signal that is ignored stays ignored.
     """
-    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    if threading.current_thread() is not threading.main_thread():
         yield lambda: None
         return
     pending: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: pending.append(signum))
+    previous = {}
+    for signum in STOP_SIGNALS:
+        if signal.getsignal(signum) is not signal.SIG_IGN:
+            previous[signum] = signal.signal(signum, lambda num, frame: pending.append(num))
 
     def check() -> None:
         if pending:
-            raise KeyboardInterrupt
+            raise Interrupted(pending[0])
 
     try:
         yield check
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     check()
 
 

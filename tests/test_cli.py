@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from mcap.reader import make_reader
 
 from slotexp.record import read_log
 from tests.helpers import SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot
@@ -437,8 +438,6 @@ def test_multirun_sweeps_solvers_with_joblib(tmp_path: Path) -> None:
 def test_a_run_whose_mpc_never_succeeds_fails_with_one_line_and_a_readable_log(
     tmp_path: Path, overrides: list[str]
 ) -> None:
-    from mcap.reader import make_reader
-
     run_dir = tmp_path / "run"
     proc = slot(
         "run", "experiment=simulate", "experiment.duration=1", *overrides, f"hydra.run.dir={run_dir}", cwd=tmp_path
@@ -469,3 +468,76 @@ def test_an_output_directory_that_cannot_be_written_is_refused_before_any_work(t
     if where != "empty":  # bench checks its --out before measuring, not after
         bench = slot("bench", "mpc", "--out", str(target), cwd=tmp_path, timeout=60)
         assert_one_line_error(bench, "--out")
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (from /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_a_stop_signal_to_the_parent_alone_stops_every_worker_and_closes_every_log(tmp_path: Path, signum) -> None:
+    # as timeout, SLURM and systemd send it, to the parent's PID only, with two scenarios running in a pool
+    # of two and a third queued behind them
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen(
+        [
+            *SLOT_CMD,
+            "run",
+            "experiment=perturb",
+            "experiment.scenarios=[baseline,roll,pitch]",
+            "experiment.duration=600",
+            "experiment.n_jobs=2",
+            f"hydra.run.dir={run_dir}",
+        ],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    logs = [run_dir / "logs" / f"{name}.mcap" for name in ("baseline", "roll")]
+    try:
+        deadline = time.monotonic() + 180
+        while time.monotonic() < deadline and proc.poll() is None:
+            if all(p.exists() and p.stat().st_size > 100_000 for p in logs):
+                break
+            time.sleep(0.1)
+        assert proc.poll() is None, proc.stderr.read()
+        workers = _children(proc.pid)
+        os.kill(proc.pid, signum)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+    assert proc.returncode == 128 + signum, stderr
+    assert "Traceback" not in stderr, stderr
+    word = "terminated" if signum == signal.SIGTERM else "interrupted"
+    assert [ln for ln in stderr.splitlines() if ln.startswith(word)], stderr
+    assert last_line(stdout) == str(run_dir)
+    time.sleep(1.0)
+    assert not [pid for pid in workers if _alive(pid)], "a worker outlived its parent"
+    for path in logs:
+        log = read_log(path)
+        assert log.truncated is False and 0 < len(log["/state"]) < 600 * 30
+        with path.open("rb") as fh:
+            assert sum(1 for _ in make_reader(fh).iter_messages()) > 0
+    assert not (run_dir / "logs" / "pitch.mcap").exists()  # queued, never started

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import datetime as _dt
 import multiprocessing as mp
 import os
 import queue
+import signal
 import subprocess
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -17,7 +21,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from .. import __version__
 from ..config import ScenarioConfig, SlotConfig
 from ..record import Recorder
-from ..simulation import RunSummary, run_closed_loop
+from ..simulation import STOP_SIGNALS, Interrupted, RunSummary, run_closed_loop
+
+PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies
 
 
 def git_commit() -> str:
@@ -83,14 +89,66 @@ def run_logged(
     return summary
 
 
+_parent_pid: int | None = None  # a pool worker's parent, and the queue it reports progress on
+_progress: Any = None
+_stopped: int | None = None  # the stop signal a pool worker has received: it starts no further run
+
+
+def _orphaned() -> bool:
+    return _parent_pid is not None and os.getppid() != _parent_pid
+
+
 def _worker(args) -> RunSummary:
-    cfg, scenario, duration, log_path, resolved_yaml, commit, q, index = args
+    cfg, scenario, duration, log_path, resolved_yaml, commit, index = args
 
     def report(done: int, total: int) -> None:
         if done % 15 == 0 or done == total:
-            q.put((index, done, total))
+            _progress.put((index, done, total))
 
-    return run_logged(cfg, scenario, duration, log_path, resolved_yaml, commit, report)
+    global _stopped
+    if _stopped is not None:  # a run queued before the stop: not started
+        raise Interrupted(_stopped)
+    try:
+        return run_logged(cfg, scenario, duration, log_path, resolved_yaml, commit, report)
+    except Interrupted as exc:  # the log is closed; with no parent left there is nobody to tell
+        _stopped = exc.signum
+        if _orphaned():
+            os._exit(128 + exc.signum)
+        raise
+
+
+def _between_runs(signum, frame) -> None:
+    """A pool worker between runs: a stop signal has nothing to stop (the parent cancels what is left),
+    unless the parent is gone, and then the worker has nothing left to do."""
+    global _stopped
+    _stopped = signum
+    if _orphaned():
+        os._exit(128 + signum)
+
+
+def _worker_init(progress) -> None:
+    """Each pool worker: stop signals are taken between MPC steps while a run is on
+    (:func:`slotexp.simulation.interrupts_between_steps`) and dropped between runs; and on Linux the
+    worker gets SIGTERM when its parent dies, so a killed ``slot run`` leaves no worker computing."""
+    global _parent_pid, _progress
+    _parent_pid, _progress = os.getppid(), progress
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, _between_runs)
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):  # not Linux: the parent's own handling still stops its workers
+        pass
+    if _orphaned():  # the parent died before the death signal was armed
+        os._exit(128 + signal.SIGTERM)
+
+
+def _stop_workers(pool: ProcessPoolExecutor, signum: int) -> None:
+    """Pass a stop signal on to every worker (each stops at its next MPC step and closes its log), drop the
+    runs not yet started, and wait for the workers to exit."""
+    for process in list(getattr(pool, "_processes", {}).values()):
+        with contextlib.suppress(OSError):
+            os.kill(process.pid, signum)
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def n_workers(requested: int, n_tasks: int) -> int:
@@ -118,15 +176,15 @@ def run_many(
                 out.append(run_logged(cfg, s, duration, log_dir / f"{s.name}.mcap", resolved_yaml, commit, report))
             return out
         ctx = mp.get_context("spawn")  # numba/cvxpy state is not fork-safe
-        with ctx.Manager() as manager:
-            q = manager.Queue()
-            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                futures = {
-                    pool.submit(_worker, (cfg, s, duration, log_dir / f"{s.name}.mcap", resolved_yaml, commit, q, i)): i
-                    for i, s in enumerate(scenarios)
-                }
-                results: dict[int, RunSummary] = {}
-                pending = set(futures)
+        q = ctx.Queue()  # progress, handed to each worker as it starts (no manager process to outlive us)
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(q,)) as pool:
+            futures = {
+                pool.submit(_worker, (cfg, s, duration, log_dir / f"{s.name}.mcap", resolved_yaml, commit, i)): i
+                for i, s in enumerate(scenarios)
+            }
+            results: dict[int, RunSummary] = {}
+            pending = set(futures)
+            try:
                 while pending:
                     try:
                         while True:
@@ -138,4 +196,7 @@ def run_many(
                         pending.discard(fut)
                         results[futures[fut]] = fut.result()
                         bar.update(tasks[futures[fut]], completed=steps)
-                return [results[i] for i in range(len(scenarios))]
+            except KeyboardInterrupt as exc:  # SIGINT or SIGTERM to this process: stop the workers too
+                _stop_workers(pool, getattr(exc, "signum", signal.SIGINT))
+                raise
+            return [results[i] for i in range(len(scenarios))]
