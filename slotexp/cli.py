@@ -90,6 +90,35 @@ def _check_hydra_dirs(overrides: list[str]) -> None:
             check_output_dir(value[1:-1] if quoted else value, key)
 
 
+def _override_value(overrides: list[str], key: str) -> str | None:
+    """The value the last ``key=...`` override gives (quotes removed), or None."""
+    value = None
+    for o in overrides:
+        k, _, v = o.lstrip("+").partition("=")
+        if k == key:
+            value = v[1:-1] if len(v) >= 2 and v[0] == v[-1] and v[0] in "'\"" else v
+    return value
+
+
+def _claim_run_dir(overrides: list[str], multirun: bool) -> None:
+    """Before Hydra writes into an explicit ``hydra.run.dir``: lock it, and refuse another run's outputs
+    unless ``overwrite=true`` (:mod:`slotexp.rundir`). A sweep directory that holds a sweep is refused too."""
+    from .rundir import claim
+
+    overwrite = (_override_value(overrides, "overwrite") or "false").lower() in ("true", "yes", "on", "1")
+    if multirun:
+        sweep = _override_value(overrides, "hydra.sweep.dir")
+        if sweep and (Path(sweep) / "multirun.yaml").exists() and not overwrite:
+            fail(f"{sweep} holds another sweep: choose another hydra.sweep.dir, or add overwrite=true")
+        return
+    run_dir = _override_value(overrides, "hydra.run.dir")
+    if run_dir:
+        try:
+            claim(Path(run_dir), overwrite)
+        except UserError as exc:
+            fail(str(exc))
+
+
 def register_schemas() -> None:
     """Every schema the CLI's configs compose onto: ``slot run``'s and ``slot hardware``'s."""
     from .config import register_schemas as register_run_schemas
@@ -323,6 +352,7 @@ def run(ctx: typer.Context) -> None:
     if not info:
         precheck(overrides, multirun)
         _check_hydra_dirs(overrides)
+        _claim_run_dir(overrides, multirun)
     register_schemas()
     sys.argv = ["slot", *args]
     main_fn = hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")(_hydra_task)
@@ -396,6 +426,7 @@ def hardware(
 
         precheck(overrides, False, HARDWARE_CONFIG, HARDWARE_GROUPS, load_hardware_config, HardwareSlotConfig)
         _check_hydra_dirs(overrides)
+        _claim_run_dir(overrides, False)
     register_schemas()
     sys.argv = ["slot", *args]
     main_fn = hydra.main(config_path=str(CONF_DIR), config_name=HARDWARE_CONFIG, version_base="1.3")(_hardware_task)
@@ -451,7 +482,12 @@ def bench(
 
 
 @app.command()
-def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (holding logs/*.mcap).")) -> None:
+def figures(
+    run_dir: Path = typer.Argument(..., help="A run's output directory (holding logs/*.mcap)."),
+    force: bool = typer.Option(
+        False, "--force", help="Rebuild even where logs are truncated, replacing outputs built from complete logs."
+    ),
+) -> None:
     """Rebuild a run's tables and figures from its MCAP logs alone."""
     from .config import config_from_yaml
     from .jobs import EXPERIMENTS
@@ -468,6 +504,18 @@ def figures(run_dir: Path = typer.Argument(..., help="A run's output directory (
             logs = find_logs(run_dir)
             if not logs:
                 fail(f"{run_dir}: no logs/*.mcap found: is this a run's output directory?")
+            truncated = [p.name for p in logs if read_log(p).truncated]
+            if truncated and not force:
+                from .rundir import earlier_outputs
+
+                built = [name for name in earlier_outputs(run_dir) if not name.endswith(".mcap")]
+                if built:
+                    fail(
+                        f"{', '.join(truncated)} in {run_dir / 'logs'} is truncated (the run was killed): rebuilding "
+                        f"would replace {', '.join(built)} with numbers from the part it holds; add --force to do so"
+                    )
+            for name in truncated:
+                typer.echo(f"warning: logs/{name} is truncated: its tables and figures cover what it holds", err=True)
             meta = read_log(logs[0]).metadata
             name = meta.get("run", {}).get("experiment")
             if name not in EXPERIMENTS.names():

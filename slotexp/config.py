@@ -401,6 +401,8 @@ class SlotConfig:
     mpc: MpcConfig = field(default_factory=MpcConfig)
     leg_load: LegLoad = field(default_factory=LegLoad)
     experiment: Any = None
+    # replace the outputs of an earlier run in hydra.run.dir (refused otherwise: slotexp/rundir.py)
+    overwrite: bool = False
 
 
 # --------------------------------------------------------------------------- checks

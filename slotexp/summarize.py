@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -93,11 +94,15 @@ def _metrics(job: Path) -> dict[str, float]:
 def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
     """Update time over every logged MPC step, and infeasible (fallback) steps."""
     walls, infeasible, infeasible_det, steps = [], 0, 0, 0
-    for path in sorted((job / "logs").glob("*.mcap")):
+    incomplete: list[str] = []
+    paths = sorted((job / "logs").glob("*.mcap"))
+    for path in paths:
         try:
             log = read_log(path)
         except LogReadError as exc:
             raise UserError(f"{path}: {str(exc).splitlines()[0]}") from exc
+        if log.truncated or "summary" not in log.metadata:  # killed, or stopped before its end
+            incomplete.append(path.name)
         if "/mpc/stats" not in log:
             continue
         stats = log["/mpc/stats"]
@@ -108,9 +113,16 @@ def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
         infeasible_det += fallback if deterministic.get(scenario, True) else 0
         steps += len(stats)
     w = np.concatenate(walls) * 1e3 if walls else np.zeros(0)
+    logs = "missing" if not paths else ("incomplete: " + " ".join(incomplete) if incomplete else "complete")
     if not w.size:
-        return {"steps": steps, "infeasible_steps": infeasible, "infeasible_deterministic": infeasible_det}
+        return {
+            "logs": logs,
+            "steps": steps,
+            "infeasible_steps": infeasible,
+            "infeasible_deterministic": infeasible_det,
+        }
     return {
+        "logs": logs,
         "steps": steps,
         "update_median_ms": float(np.median(w)),
         "update_p99_ms": float(np.percentile(w, 99)),
@@ -134,13 +146,16 @@ def summarize(multirun_dir: Path) -> pd.DataFrame:
         row.update({k: o.get(k, "") for k in swept})
         row.update(_metrics(job))
         row.update(_timing(job, _deterministic(job)))
+        if row["logs"] != "complete":
+            print(f"warning: {job.name}: logs {row['logs']}: its row is not a whole run", file=sys.stderr)
         rows.append(row)
     table = pd.DataFrame(rows)
     table.to_csv(multirun_dir / "summary.csv", index=False, float_format="%.6g")
     (multirun_dir / "summary.md").write_text(
         f"Sweep `{multirun_dir}`: {len(jobs)} jobs. Update time = /mpc/stats wall_time_s (build or update + solve) "
         f"over every logged MPC step but each log's first (one-off setup); infeasible = fallback steps "
-        f"(deterministic: in scenarios without noise).\n\n" + to_markdown(table) + "\n"
+        f"(deterministic: in scenarios without noise); logs: complete, incomplete (a log cut off or stopped "
+        f"before its end: that row is not a whole run) or missing.\n\n" + to_markdown(table) + "\n"
     )
     _plot(table, multirun_dir / "summary.png")
     return table
@@ -183,4 +198,4 @@ def _plot(table: pd.DataFrame, path: Path) -> None:
     save(fig, path)
 
 
-_FIXED = {"job", "solver"}
+_FIXED = {"job", "solver", "logs"}

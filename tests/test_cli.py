@@ -541,3 +541,83 @@ def test_a_stop_signal_to_the_parent_alone_stops_every_worker_and_closes_every_l
         with path.open("rb") as fh:
             assert sum(1 for _ in make_reader(fh).iter_messages()) > 0
     assert not (run_dir / "logs" / "pitch.mcap").exists()  # queued, never started
+
+
+# --------------------------------------------------------------------------- an output directory is never reused
+
+
+def test_a_run_directory_with_another_runs_outputs_is_refused_unless_overwrite(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    first = slot("run", "experiment=simulate", "experiment.duration=1", f"hydra.run.dir={run_dir}", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    log = run_dir / "logs" / "walk.mcap"
+    before = log.read_bytes()
+    again = slot("run", "experiment=simulate", "experiment.duration=2", f"hydra.run.dir={run_dir}", cwd=tmp_path)
+    assert_one_line_error(again, str(run_dir), "overwrite=true")
+    assert log.read_bytes() == before  # nothing already written is lost
+    replaced = slot(
+        "run",
+        "experiment=simulate",
+        "experiment.duration=2",
+        f"hydra.run.dir={run_dir}",
+        "overwrite=true",
+        cwd=tmp_path,
+    )
+    assert replaced.returncode == 0, replaced.stderr
+    assert len(read_log(log)["/state"]) == 60  # the new run's, whole
+
+
+def test_a_run_directory_in_use_is_refused(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    busy = subprocess.Popen(
+        [*SLOT_CMD, "run", "experiment=simulate", "experiment.duration=600", f"hydra.run.dir={run_dir}"],
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not (run_dir / "logs" / "walk.mcap").exists():
+            time.sleep(0.1)
+        second = slot(
+            "run",
+            "experiment=simulate",
+            "experiment.duration=1",
+            f"hydra.run.dir={run_dir}",
+            "overwrite=true",
+            cwd=tmp_path,
+        )
+        assert_one_line_error(second, "in use by another slot run")
+    finally:
+        os.killpg(busy.pid, signal.SIGTERM)
+        busy.wait(timeout=60)
+    assert read_log(run_dir / "logs" / "walk.mcap").truncated is False  # the first run's log, closed
+
+
+def test_figures_and_summarize_say_which_logs_are_truncated(tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    proc = slot(
+        "run",
+        "-m",
+        "experiment=simulate",
+        "experiment.duration=1",
+        "mpc.horizon=5,6",
+        f"hydra.sweep.dir={sweep}",
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr
+    job = sorted(p for p in sweep.iterdir() if p.is_dir())[0]
+    log = job / "logs" / "walk.mcap"
+    log.write_bytes(log.read_bytes()[: log.stat().st_size // 2])  # as a SIGKILL leaves it
+    metrics = (job / "metrics.json").read_bytes()
+    refused = slot("figures", str(job), cwd=tmp_path)
+    assert_one_line_error(refused, "walk.mcap", "truncated", "--force")
+    assert (job / "metrics.json").read_bytes() == metrics  # built from the complete log: kept
+    forced = slot("figures", str(job), "--force", cwd=tmp_path)
+    assert forced.returncode == 0 and "walk.mcap is truncated" in forced.stderr, forced.stderr
+    summary = slot("summarize", str(sweep), cwd=tmp_path)
+    assert summary.returncode == 0, summary.stderr
+    assert f"warning: {job.name}: logs incomplete: walk.mcap" in summary.stderr
+    table = pd.read_csv(sweep / "summary.csv")
+    assert list(table["logs"]) == ["incomplete: walk.mcap", "complete"]
