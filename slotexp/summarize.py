@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from .atomic import write_csv, write_text
 from .errors import UserError
 from .figures.style import new_figure, save
 from .record import LogReadError, read_log
@@ -150,12 +151,13 @@ def summarize(multirun_dir: Path) -> pd.DataFrame:
             print(f"warning: {job.name}: logs {row['logs']}: its row is not a whole run", file=sys.stderr)
         rows.append(row)
     table = pd.DataFrame(rows)
-    table.to_csv(multirun_dir / "summary.csv", index=False, float_format="%.6g")
-    (multirun_dir / "summary.md").write_text(
+    write_csv(table, multirun_dir / "summary.csv", index=False, float_format="%.6g")
+    write_text(
+        multirun_dir / "summary.md",
         f"Sweep `{multirun_dir}`: {len(jobs)} jobs. Update time = /mpc/stats wall_time_s (build or update + solve) "
         f"over every logged MPC step but each log's first (one-off setup); infeasible = fallback steps "
         f"(deterministic: in scenarios without noise); logs: complete, incomplete (a log cut off or stopped "
-        f"before its end: that row is not a whole run) or missing.\n\n" + to_markdown(table) + "\n"
+        f"before its end: that row is not a whole run) or missing.\n\n" + to_markdown(table) + "\n",
     )
     _plot(table, multirun_dir / "summary.png")
     return table

@@ -426,3 +426,18 @@ def test_write_validation(tmp_path: Path) -> None:
             rec.write("/s", 0.0, {"x": object()})
         with pytest.raises(ValueError):
             rec.write_pose(0.0, [1.0, 2.0], [1.0, 0.0, 0.0, 0.0])
+
+
+def test_outputs_are_replaced_whole_or_not_at_all(tmp_path) -> None:
+    from slotexp.atomic import replacing, write_text
+
+    target = tmp_path / "table1.csv"
+    write_text(target, "old\n")
+    with pytest.raises(RuntimeError):
+        with replacing(target) as tmp:
+            tmp.write_text("half of a new ta")
+            raise RuntimeError("stopped while writing")
+    assert target.read_text() == "old\n"  # the reader still sees the complete old file
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["table1.csv"]  # and no temporary is left
+    write_text(target, "new\n")
+    assert target.read_text() == "new\n"

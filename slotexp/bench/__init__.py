@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..atomic import write_text
 from ..config import SlotConfig
 from ..registry import Registry
 
@@ -67,5 +68,5 @@ def write(rows: list[BenchRow], out_dir: Path) -> Path:
             writer.writerow(
                 [r.component, r.variant, f"{r.median_us:.4g}", f"{r.p99_us:.4g}", f"{r.ratio_vs_baseline:.4g}"]
             )
-    (out_dir / "bench.json").write_text(json.dumps([asdict(r) for r in rows], indent=2, default=float))
+    write_text(out_dir / "bench.json", json.dumps([asdict(r) for r in rows], indent=2, default=float))
     return path

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import OmegaConf
 
+from ..atomic import write_text
 from ..backends import BACKENDS, make_mpc
 from ..backends._base import single_threaded_blas
 from ..config import SlotConfig, SolverConfig
@@ -193,7 +194,7 @@ def _write_table(rows: list[BenchRow], path: Path) -> None:
         f"{rows[0].extra['steps_timed']} timed steps per backend ({PASSES} passes, first solve of each pass "
         f"excluded), one process, BLAS pinned to one thread; 1-min load average at start {load:.2f}.\n\n"
     )
-    path.write_text(note + "\n".join(lines) + "\n")
+    write_text(path, note + "\n".join(lines) + "\n")
 
 
 def _write_csv(rows: list[BenchRow], path: Path) -> None:
@@ -219,4 +220,4 @@ def _write_csv(rows: list[BenchRow], path: Path) -> None:
             **r.extra,
         }
         out.append(",".join(str(vals[c]) if isinstance(vals[c], str) else f"{vals[c]:.6g}" for c in cols))
-    path.write_text("\n".join(out) + "\n")
+    write_text(path, "\n".join(out) + "\n")

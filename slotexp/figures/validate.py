@@ -13,6 +13,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from ..atomic import replacing
+
 __all__ = ["plot_overlay"]
 
 _AXES = ("x", "y", "z")
@@ -70,6 +72,6 @@ def plot_overlay(
         fig.suptitle(title)
 
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=150, format="png")
+    with replacing(out) as tmp:
+        fig.savefig(tmp, dpi=150, format="png")
     return out

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import write_csv, write_text
 from ..config import SlotConfig, num_field
 from ..errors import ConfigError
 from ..record import Recorder, read_log
@@ -99,15 +100,19 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
     result = fit(angle, fz, min_force)
     used = result.pop("used")
     result["paper"] = {"slope_n_per_deg": PAPER[0], "offset_n": PAPER[1]}
-    df[["angle_deg", "normal_force_n", "tension_n", "tip_x", "tip_z"]].to_csv(
-        out_dir / "calibration.csv", index=False, float_format="%.6g"
+    write_csv(
+        df[["angle_deg", "normal_force_n", "tension_n", "tip_x", "tip_z"]],
+        out_dir / "calibration.csv",
+        index=False,
+        float_format="%.6g",
     )
-    (out_dir / "calibrate.json").write_text(json.dumps(result, indent=2))
-    (out_dir / "actuation_calibrated.yaml").write_text(
+    write_text(out_dir / "calibrate.json", json.dumps(result, indent=2))
+    write_text(
+        out_dir / "actuation_calibrated.yaml",
         "# @package robot.actuation\n"
         f"# Fitted by `slot run experiment=calibrate` (R^2 = {result['r2']:.4f}, "
         f"{result['angle_range_deg'][0]:.1f}-{result['angle_range_deg'][1]:.1f} deg)\n"
-        f"slope_n_per_deg: {result['slope_n_per_deg']:.6g}\noffset_n: {result['offset_n']:.6g}\n"
+        f"slope_n_per_deg: {result['slope_n_per_deg']:.6g}\noffset_n: {result['offset_n']:.6g}\n",
     )
     plot_calibration(
         angle, fz, used, result["slope_n_per_deg"], result["offset_n"], PAPER, out_dir / "fig_calibrate.png"

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from ..atomic import write_csv, write_text
 from ..config import GaitStyleConfig, PrimitiveConfig, SlotConfig, num_field
 from ..errors import ConfigError
 from ..locomotion.openloop import GaitMetrics, run_gait
@@ -350,7 +351,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
     log = read_log(out_dir / "logs" / "gait_search.mcap")
     candidates = log["/search/candidate"]
     verified = log["/search/verified"] if "/search/verified" in log else pd.DataFrame()
-    candidates.drop(columns="t").to_csv(out_dir / "search.csv", index=False, float_format="%.6g")
+    write_csv(candidates.drop(columns="t"), out_dir / "search.csv", index=False, float_format="%.6g")
     library = library_from_log(cfg, verified)
     text = yaml.safe_dump(
         {exp.style: OmegaConf.to_container(OmegaConf.structured(library))},
@@ -358,9 +359,10 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         sort_keys=False,
         width=120,
     )
-    (out_dir / "library.yaml").write_text(
+    write_text(
+        out_dir / "library.yaml",
         "# @package controller.library\n# Written by `slot run experiment=gait_search` (style "
-        f"{exp.style}); measured at sim.dt = {cfg.sim.dt:g} s.\n" + text
+        f"{exp.style}); measured at sim.dt = {cfg.sim.dt:g} s.\n" + text,
     )
     best = {}
     for target, group in candidates.groupby("target"):
@@ -382,7 +384,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         if len(verified)
         else [],
     }
-    (out_dir / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
+    write_text(out_dir / "metrics.json", json.dumps(result, indent=2, default=float))
     plot_search(candidates, out_dir / "fig_search.png")
     if len(verified):
         plot_polar(verified, out_dir / "fig_gait_polar.png", exp.style)

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..atomic import write_csv, write_text
 from ..config import SlotConfig, num_field, vec_field
 from ..errors import ConfigError
 from ..record import Recorder, read_log
@@ -146,11 +147,11 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
     fits = fit_maps(free, stuck, tuple(exp.degrees), exp.fit_min_force)
     if "/legmap/free_holdout" in log and "/legmap/stuck_holdout" in log:
         holdout_errors(fits, log["/legmap/free_holdout"], log["/legmap/stuck_holdout"], exp.fit_min_force)
-    free.drop(columns="t").to_csv(out_dir / "legmap_free.csv", index=False, float_format="%.6g")
-    stuck.drop(columns="t").to_csv(out_dir / "legmap_stuck.csv", index=False, float_format="%.6g")
+    write_csv(free.drop(columns="t"), out_dir / "legmap_free.csv", index=False, float_format="%.6g")
+    write_csv(stuck.drop(columns="t"), out_dir / "legmap_stuck.csv", index=False, float_format="%.6g")
     stance = float(log.metadata["run"]["stance_root_height_m"])
     result = {"stance_root_height_m": stance, "fits": {k: f.as_dict() for k, f in fits.items()}}
-    (out_dir / "legmap.json").write_text(json.dumps(result, indent=2))
+    write_text(out_dir / "legmap.json", json.dumps(result, indent=2))
     plot_legmap(free, stuck, fits, stance, out_dir / "fig_legmap.png")
     return result
 

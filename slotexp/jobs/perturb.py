@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import write_csv, write_text
 from ..config import SlotConfig, check_run_length, check_scenario, choice_field, num_field
 from ..errors import ConfigError
 from ..metrics import cycle_mean_cost
@@ -77,7 +78,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> list[RunData]:
         for run in runs:
             run.cost = cycle_mean_cost(run.x, run.x_ref, q, window)
     table = table1(runs, settle_fraction, settle_hold_s)
-    table.to_csv(out_dir / "table1.csv", index=False, float_format="%.6g")
+    write_csv(table, out_dir / "table1.csv", index=False, float_format="%.6g")
     headers = ["Scenario", "Max cost", "Mean cost", "Final cost", "Settle (s)", "Infeasible steps"]
     what = (
         "J of the error averaged over the last gait cycle"
@@ -89,7 +90,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> list[RunData]:
         f"(for >= {settle_hold_s:g} s before the end). "
         f"Solver: {runs[0].run.get('solver', '?')}, plant: {runs[0].run.get('plant', '?')}.\n\n"
     )
-    (out_dir / "table1.md").write_text(note + to_markdown(table, headers))
+    write_text(out_dir / "table1.md", note + to_markdown(table, headers))
     if exp.cost_average == "gait_cycle":
         plot_costs(runs, out_dir / "fig7_cost.png", ylabel=r"cost of the cycle-mean error $10^3\,\bar e^\top Q \bar e$")
     else:
@@ -107,7 +108,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> list[RunData]:
     result = {"table1": table.to_dict(orient="records"), "cost_average": exp.cost_average, "solver_timing": timing}
     if exp.cost_average != "step":
         result["table1_step_cost"] = step_table.to_dict(orient="records")
-    (out_dir / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
+    write_text(out_dir / "metrics.json", json.dumps(result, indent=2, default=float))
     return runs
 
 

@@ -12,6 +12,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..atomic import write_csv, write_text
 from ..compare import Alignment, Trajectory, align, compare, load_marker_csv, trajectory_from_frame
 from ..config import SlotConfig, check_scenario, choice_field, num_field
 from ..errors import ConfigError, UserError
@@ -78,7 +79,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         "offset_s": exp.offset_s,
         "markers": exp.markers,
     }
-    (out_dir / INPUTS_FILE).write_text(json.dumps(inputs, indent=2))
+    write_text(out_dir / INPUTS_FILE, json.dumps(inputs, indent=2))
     rebuild(out_dir)
 
 
@@ -108,18 +109,19 @@ def report(
     from ..figures.validate import plot_overlay
 
     table = compare(reference, candidate, alignment, markers)
-    table.to_csv(out_dir / "validate.csv", index=False, float_format="%.6g")
+    write_csv(table, out_dir / "validate.csv", index=False, float_format="%.6g")
     header = (
         f"Reference: `{reference_name}`  \nCandidate: `{candidate_name}`  \n"
         f"Alignment: {alignment.mode}, offset {alignment.offset_s:g} s\n\n"
     )
-    (out_dir / "validate.md").write_text(header + to_markdown(table))
+    write_text(out_dir / "validate.md", header + to_markdown(table))
     times, ref, cand = align(reference, candidate, alignment)
     if markers:
         ref = {m: ref[m] for m in markers}
         cand = {m: cand[m] for m in markers}
     plot_overlay(times, ref, cand, out_dir / "fig_validate.png", title="candidate vs reference")
-    (out_dir / "metrics.json").write_text(
+    write_text(
+        out_dir / "metrics.json",
         json.dumps(
             {
                 "reference": reference_name,
@@ -129,7 +131,7 @@ def report(
             },
             indent=2,
             default=float,
-        )
+        ),
     )
 
 
