@@ -33,11 +33,18 @@ class CalibrateExperiment:
 
     name: str = "calibrate"
     angles: int = num_field(25, lo=3, hi=1000, unit="points")
-    max_deg: float | None = None  # None: robot.leg.tendon_max_deg
+    # None: robot.leg.tendon_max_deg; at most that (the tendon winds no further)
+    max_deg: float | None = num_field(None, lo=0.0, lo_open=True, unit="deg")
     fit_min_force: float = num_field(0.5, lo=0.0, unit="N")  # fit only where the foot is loaded
 
     def check(self, cfg: SlotConfig) -> None:
         check_leg_load(cfg)
+        top = cfg.robot.leg.tendon_max_deg
+        if self.max_deg is not None and self.max_deg > top:
+            raise ConfigError(
+                f"experiment.max_deg = {self.max_deg:g} deg is out of range: must be > 0 and <= "
+                f"robot.leg.tendon_max_deg = {top:g} deg"
+            )
 
 
 def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
