@@ -381,7 +381,8 @@ class LegLoad:
     tip_moment: float = num_field(0.0, unit="N m")
     tendon_deg: float = num_field(0.0, lo=0.0, hi=360.0, unit="deg")
     ground: bool = True
-    root_height: float | None = None  # m above the ground; None: the rest shape's (tip just touching)
+    # m above the ground (a root below it cannot be clamped there); None: the rest shape's (tip just touching)
+    root_height: float | None = num_field(None, lo=0.0, unit="m")
     settle_time: float = num_field(3.0, lo=0.0, lo_open=True, unit="s")
     dt: float = num_field(1.0e-4, lo=1.0e-6, hi=1e-2, unit="s")  # below 1 us a leg run takes hours
     integrator: str = choice_field("implicit", "implicit", "symplectic")

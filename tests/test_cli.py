@@ -165,6 +165,7 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     (["experiment=perturb", "experiment.duration=0.01"], ["experiment.duration = 0.01", "0.0667 s"]),
     (["=5"], ["'=5'", "key=value"]),
     (["experiment=calibrate", "experiment.max_deg=-10"], ["experiment.max_deg = -10"]),
+    (["experiment=leg", "leg_load.root_height=-1"], ["leg_load.root_height = -1"]),
     # errors that point the right way: the key the user meant, not Hydra's "+key" (which nothing would read)
     (["mpc.horizonn=10"], ["unknown key mpc.horizonn", "did you mean mpc.horizon?"]),
     (["+mpc.horizonn=10"], ["unknown key mpc.horizonn", "did you mean mpc.horizon?"]),
