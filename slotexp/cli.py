@@ -324,7 +324,7 @@ def _hydra_task(cfg) -> None:
     except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except KeyboardInterrupt as exc:
-        signum = getattr(exc, "signum", signal.SIGINT)
+        signum = _stop_signal(exc)
         word = "terminated" if signum == signal.SIGTERM else "interrupted"
         typer.echo(f"{word}: the logs written so far are valid and readable in {out_dir}", err=True)
         typer.echo(str(out_dir))
@@ -542,11 +542,20 @@ def summarize(
     typer.echo(str(multirun_dir))
 
 
+_received: list[int] = []  # stop signals this process has taken (a launcher may re-raise them as plain Ctrl-C)
+
+
 def _terminate(signum, frame) -> None:
     """SIGTERM (timeout, SLURM, systemd) as Ctrl-C: unwind, close what is open, exit 143."""
     from .simulation import Interrupted
 
+    _received.append(signum)
     raise Interrupted(signum)
+
+
+def _stop_signal(exc: BaseException) -> int:
+    """The signal behind a KeyboardInterrupt: its own, or the last one this process took, or SIGINT."""
+    return getattr(exc, "signum", None) or (_received[-1] if _received else signal.SIGINT)
 
 
 def main() -> None:
@@ -555,7 +564,7 @@ def main() -> None:
     try:
         app()
     except KeyboardInterrupt as exc:
-        signum = getattr(exc, "signum", signal.SIGINT)
+        signum = _stop_signal(exc)
         typer.echo("terminated" if signum == signal.SIGTERM else "interrupted", err=True)
         raise SystemExit(128 + signum) from None
 
