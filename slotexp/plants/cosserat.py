@@ -553,11 +553,25 @@ class CosseratPlant:
         self._run(period, f_ext, hold=False)
 
     def _run(self, period: float, f_ext: np.ndarray, hold: bool) -> None:
+        n, h = self._steps(period)
+        own = {name: getattr(self, name) for name in _OWN}
+        done = coupled_steps(*self._kernel_args(own, self._work, f_ext, h, n), hold)
+        self._advanced(done, n, h, "the soft-leg simulation", "the scenario's offsets and impulses")
+
+    def _steps(self, period: float) -> tuple[int, float]:
+        """How many steps cover ``period``, and their length (at most ``sim.dt``, equal)."""
         n = max(1, int(round(period / self.dt)))
-        h = period / n
+        return n, period / n
+
+    def _kernel_args(
+        self, own: dict[str, np.ndarray], work: tuple[np.ndarray, ...], f_ext: np.ndarray, h: float, n: int
+    ) -> tuple:
+        """The arguments :func:`coupled_steps` and :func:`batch_steps` share, in their order: this plant's
+        model and settings, and the per-robot arrays ``own`` (named as in ``_OWN``) and ``work`` (scratch),
+        one robot's or a batch's stacked along a first axis."""
         m = self.model
-        done = coupled_steps(
-            self.torso,
+        return (
+            own["torso"],
             self.torso_mass,
             self.inertia,
             self.inertia_inv,
@@ -565,10 +579,10 @@ class CosseratPlant:
             self.corners,
             self.yaw,
             float(m.rest_theta[0]),
-            self.pos,
-            self.vel,
-            self.theta,
-            self.omega,
+            own["pos"],
+            own["vel"],
+            own["theta"],
+            own["omega"],
             m.rest_pos,
             m.l0,
             m.voronoi,
@@ -578,38 +592,33 @@ class CosseratPlant:
             m.ei,
             m.mass,
             m.inertia,
-            self.par,
-            self.servo,
-            self.servo_cmd,
+            own["par"],
+            own["servo"],
+            own["servo_cmd"],
             self.servo_par,
             self.cfg.robot.leg.pulley_radius,
-            self.free0,
-            self.prev_corner,
+            own["free0"],
+            own["prev_corner"],
             f_ext,
             self.cfg.robot.contact.friction,
             self.cfg.robot.contact.slip_velocity,
             self.implicit,
             h,
             n,
-            self.normal,
-            self.out,
-            *self._work,
-            self.reaction,
-            hold,
+            own["normal"],
+            own["out"],
+            *work,
+            own["reaction"],
         )
+
+    def _advanced(self, done: int, n: int, h: float, what: str, loads: str) -> None:
+        """Count ``done`` of ``n`` steps of ``h``; a run cut short or gone non-finite diverged."""
         self.time += done * h
         if done < n or not np.all(np.isfinite(self.torso)):
-            limit = stable_dt(m, self.cfg.robot.contact.stiffness)
+            limit = stable_dt(self.model, self.cfg.robot.contact.stiffness)
             raise DivergenceError(
                 divergence_message(
-                    "the soft-leg simulation",
-                    self.time,
-                    h,
-                    self.cfg.plant.integrator,
-                    limit,
-                    ("sim.dt", "plant.integrator"),
-                    "the scenario's offsets and impulses",
-                    self.dt,
+                    what, self.time, h, self.cfg.plant.integrator, limit, ("sim.dt", "plant.integrator"), loads, self.dt
                 )
             )
 
@@ -619,9 +628,22 @@ class CosseratPlant:
         self.torso[10:13] += self.inertia_inv @ (rot.T @ np.asarray(angular, dtype=float))
 
 
-# each robot's own arrays, in the order the kernels take them; the batch stacks them along a first axis
-_OWN = ("torso", "pos", "vel", "theta", "omega", "par", "servo", "servo_cmd", "free0", "prev_corner", "normal")
-_OWN_AFTER_WORK = ("reaction",)
+# each robot's own arrays (state, servo, contact output): a batch stacks them along a first axis
+_OWN = (
+    "torso",
+    "pos",
+    "vel",
+    "theta",
+    "omega",
+    "par",
+    "servo",
+    "servo_cmd",
+    "free0",
+    "prev_corner",
+    "normal",
+    "out",
+    "reaction",
+)
 
 
 class CosseratBatch:
@@ -645,17 +667,12 @@ class CosseratBatch:
         if any(p.implicit != first.implicit for p in plants):
             raise ValueError("every plant in a batch must use the same integrator")
         self.plants = plants
-        self.stacked: dict[str, np.ndarray] = {}
-        for name in _OWN + _OWN_AFTER_WORK:
-            self.stacked[name] = np.stack([getattr(p, name) for p in plants])
-            for b, p in enumerate(plants):
-                setattr(p, name, self.stacked[name][b])
+        self.stacked = {name: np.stack([getattr(p, name) for p in plants]) for name in _OWN}
         self.work = tuple(np.stack([p._work[k] for p in plants]) for k in range(len(first._work)))
         for b, p in enumerate(plants):
+            for name, stacked in self.stacked.items():
+                setattr(p, name, stacked[b])
             p._work = tuple(w[b] for w in self.work)
-        self.out = np.stack([p.out for p in plants])
-        for b, p in enumerate(plants):
-            p.out = self.out[b]
         self.f_ext = np.zeros((len(plants), 3))
         self.done = np.zeros(len(plants), dtype=np.int64)
 
@@ -669,64 +686,7 @@ class CosseratBatch:
             raise ValueError(f"tendon_deg must be ({len(self)}, 4), not {tendon_deg.shape}")
         first = self.plants[0]
         self.stacked["servo_cmd"][:] = np.deg2rad(tendon_deg)
-        n = max(1, int(round(period / first.dt)))
-        h = period / n
-        m = first.model
-        st = self.stacked
-        batch_steps(
-            st["torso"],
-            first.torso_mass,
-            first.inertia,
-            first.inertia_inv,
-            first.cfg.sim.gravity,
-            first.corners,
-            first.yaw,
-            float(m.rest_theta[0]),
-            st["pos"],
-            st["vel"],
-            st["theta"],
-            st["omega"],
-            m.rest_pos,
-            m.l0,
-            m.voronoi,
-            m.dtheta0,
-            m.ea,
-            m.ga,
-            m.ei,
-            m.mass,
-            m.inertia,
-            st["par"],
-            st["servo"],
-            st["servo_cmd"],
-            first.servo_par,
-            first.cfg.robot.leg.pulley_radius,
-            st["free0"],
-            st["prev_corner"],
-            self.f_ext,
-            first.cfg.robot.contact.friction,
-            first.cfg.robot.contact.slip_velocity,
-            first.implicit,
-            h,
-            n,
-            st["normal"],
-            self.out,
-            *self.work,
-            st["reaction"],
-            self.done,
-        )
+        n, h = first._steps(period)
+        batch_steps(*first._kernel_args(self.stacked, self.work, self.f_ext, h, n), self.done)
         for b, p in enumerate(self.plants):
-            p.time += self.done[b] * h
-            if self.done[b] < n or not np.all(np.isfinite(p.torso)):
-                limit = stable_dt(m, first.cfg.robot.contact.stiffness)
-                raise DivergenceError(
-                    divergence_message(
-                        f"robot {b} of the batch",
-                        p.time,
-                        h,
-                        first.cfg.plant.integrator,
-                        limit,
-                        ("sim.dt", "plant.integrator"),
-                        "its tendon commands",
-                        first.dt,
-                    )
-                )
+            p._advanced(int(self.done[b]), n, h, f"robot {b} of the batch", "its tendon commands")
