@@ -83,11 +83,10 @@ def check_output_dir(path: str | Path, what: str) -> None:
 
 def _check_hydra_dirs(overrides: list[str]) -> None:
     """``hydra.run.dir`` / ``hydra.sweep.dir`` given on the command line: checked before Hydra starts."""
-    for o in overrides:
-        key, _, value = o.lstrip("+").partition("=")
-        if key in ("hydra.run.dir", "hydra.sweep.dir"):
-            quoted = len(value) >= 2 and value[0] == value[-1] and value[0] in "'\""
-            check_output_dir(value[1:-1] if quoted else value, key)
+    for key in ("hydra.run.dir", "hydra.sweep.dir"):
+        value = _override_value(overrides, key)
+        if value is not None:
+            check_output_dir(value, key)
 
 
 def _override_value(overrides: list[str], key: str) -> str | None:
@@ -508,7 +507,7 @@ def figures(
             if truncated and not force:
                 from .rundir import earlier_outputs
 
-                built = [name for name in earlier_outputs(run_dir) if not name.endswith(".mcap")]
+                built = [p.name for p in earlier_outputs(run_dir) if p.parent == run_dir]
                 if built:
                     fail(
                         f"{', '.join(truncated)} in {run_dir / 'logs'} is truncated (the run was killed): rebuilding "

@@ -6,29 +6,26 @@ the process ends, however it ends) before Hydra writes anything there, and refus
 a directory that another run is writing or that holds another run's outputs
 (``logs/*.mcap``, tables, metrics), unless ``overwrite=true``: then the earlier
 outputs are removed first, so that no table mixes two runs. Timestamped default
-directories are new, and get the lock too.
+directories are new and are not locked.
 """
 
 from __future__ import annotations
 
 import fcntl
 import os
-import shutil
 from pathlib import Path
 from typing import IO
 
 from .errors import UserError
 
 LOCK = ".slot-run.lock"
-OUTPUTS = ("logs", "table1.csv", "table1.md", "metrics.json", "fig7_cost.png", "fig8_dcm.png")  # a run's own
+TABLES = ("table1.csv", "table1.md", "metrics.json", "fig7_cost.png", "fig8_dcm.png")  # built from a run's logs
 _held: list[IO[str]] = []  # locks this process holds until it ends
 
 
-def earlier_outputs(run_dir: Path) -> list[str]:
-    """What ``run_dir`` holds of another run's outputs."""
-    found = sorted(p.name for p in run_dir.glob("logs/*.mcap"))
-    found += [name for name in OUTPUTS[1:] if (run_dir / name).exists()]
-    return found
+def earlier_outputs(run_dir: Path) -> list[Path]:
+    """What ``run_dir`` holds of another run's outputs: its logs, then what was built from them."""
+    return sorted(run_dir.glob("logs/*.mcap")) + [run_dir / name for name in TABLES if (run_dir / name).exists()]
 
 
 def claim(run_dir: Path, overwrite: bool) -> None:
@@ -49,14 +46,10 @@ def claim(run_dir: Path, overwrite: bool) -> None:
     _held.append(handle)
     earlier = earlier_outputs(run_dir)
     if earlier and not overwrite:
-        shown = ", ".join(earlier[:3]) + (", ..." if len(earlier) > 3 else "")
+        shown = ", ".join(p.name for p in earlier[:3]) + (", ..." if len(earlier) > 3 else "")
         raise UserError(
             f"{run_dir} holds another run's outputs ({shown}): choose another hydra.run.dir, or add overwrite=true "
             f"to replace them"
         )
-    for name in earlier:
-        target = run_dir / "logs" / name if name.endswith(".mcap") else run_dir / name
-        if target.is_dir():
-            shutil.rmtree(target)
-        else:
-            target.unlink(missing_ok=True)
+    for path in earlier:
+        path.unlink(missing_ok=True)
