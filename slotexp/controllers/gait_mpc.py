@@ -27,7 +27,7 @@ asks for is used where the legs can give it:
   heaves and rocks the body within each cycle, and that is how it walks (the leg
   that presses harder sticks): a controller that flattened it step by step would
   stop the robot. So the legs' differences (attitude) and most of their common
-  part (height) are averaged over one gait cycle, and only the fraction
+  part (height) are averaged over gait cycles, and only the fraction
   ``height_at_once`` of the common part acts at once. Measured (``sim.dt=1e-4``):
   the forward gait at full stroke (12 s, 35 mm/s command) made 30.6 mm/s with every
   offset averaged and 19.1 mm/s with the whole height part at once (31.6 open
