@@ -491,7 +491,7 @@ def figures(
     from .config import config_from_yaml
     from .jobs import EXPERIMENTS
     from .jobs import validate as val
-    from .record import read_log
+    from .record import is_closed, read_log
     from .runlog import find_logs
 
     if not run_dir.is_dir():
@@ -503,7 +503,7 @@ def figures(
             logs = find_logs(run_dir)
             if not logs:
                 fail(f"{run_dir}: no logs/*.mcap found: is this a run's output directory?")
-            truncated = [p.name for p in logs if read_log(p).truncated]
+            truncated = [p.name for p in logs if not is_closed(p)]
             if truncated and not force:
                 from .rundir import earlier_outputs
 

@@ -413,8 +413,8 @@ class Log:
 _Raw = tuple[str, str, int, bytes]
 
 
-def _read_indexed(f: IO[bytes], size: int) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
-    """Read through the summary index; raises if the file has no valid footer/summary."""
+def _indexed_reader(f: IO[bytes], size: int) -> Any:
+    """An mcap reader of a closed file (footer and summary in place); raises otherwise."""
     if size < len(_MAGIC) * 2:
         raise ValueError("file too short for a footer")
     f.seek(size - len(_MAGIC))
@@ -424,6 +424,23 @@ def _read_indexed(f: IO[bytes], size: int) -> tuple[list[_Raw], dict[str, dict[s
     reader = make_reader(f, validate_crcs=True)
     if reader.get_summary() is None:
         raise ValueError("no summary section")
+    return reader
+
+
+def is_closed(path: str | Path) -> bool:
+    """Whether the log at ``path`` was closed (its footer and summary written), without reading its
+    messages: a log cut off by a kill is not, and :func:`read_log` reports it ``truncated``."""
+    try:
+        with open(path, "rb") as f:
+            _indexed_reader(f, os.fstat(f.fileno()).st_size)
+    except Exception:  # noqa: BLE001 - any failure to find the summary means not closed
+        return False
+    return True
+
+
+def _read_indexed(f: IO[bytes], size: int) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
+    """Read through the summary index; raises if the file has no valid footer/summary."""
+    reader = _indexed_reader(f, size)
     raw = [
         (channel.topic, channel.message_encoding, message.log_time, message.data)
         for _schema, channel, message in reader.iter_messages(log_time_order=True)
