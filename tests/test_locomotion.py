@@ -122,6 +122,35 @@ def test_cycle_blend_alternates_whole_primitives_so_the_mean_velocity_points_whe
     assert weights["l"] / (weights["f"] + weights["l"]) == pytest.approx(0.05)
 
 
+def test_the_library_times_each_primitive_to_its_neighbour_and_the_fastest_keeps_its_clock() -> None:
+    f = _prim("f", 0.0, 0.03)
+    late = Primitive("l", f.base_deg, f.amplitude_deg, f.phase + 0.4, 90.0, 0.02)  # f's legs, 0.4 cycles off
+    odd = Primitive("b", f.base_deg, f.amplitude_deg, np.array([0.3, 0.1, -0.2, 0.05]), 180.0, 0.02)  # other sequence
+    lib = GaitLibrary(STYLE, [f, late, odd, _prim("r", -90.0, 0.02).shifted(0.7)], 70.0, TOP)
+    psi = np.linspace(0.0, 1.0, 61)
+    by_name = {p.name: p for p in lib.translation}
+    np.testing.assert_array_equal(by_name["f"].phase, f.phase)  # the fastest is the reference
+    # a copy of f delayed in time is put back in step with it, to the alignment's 1/240 of a cycle
+    np.testing.assert_allclose((by_name["l"].phase - f.phase + 0.5) % 1.0 - 0.5, 0.0, atol=1e-12)
+    for p in lib.translation:  # a shift of the whole clock: same legs, same measurements, same schedule in time
+        original = {"f": f, "l": late, "b": odd}.get(p.name)
+        if original is not None:
+            shift = p.phase[0] - original.phase[0]
+            np.testing.assert_allclose(p.phase - original.phase, shift, atol=1e-12)
+            np.testing.assert_allclose(p.angles(STYLE, psi, TOP), original.angles(STYLE, psi + shift, TOP), atol=1e-9)
+            assert (p.heading_deg, p.speed_mps) == (original.heading_deg, original.speed_mps)
+    # b is timed to its neighbour l (already in step with f): no shift of b correlates better with l
+    b, left = by_name["b"], by_name["l"]
+    score = [
+        np.sum(
+            (b.angles(STYLE, psi + d, TOP) - b.angles(STYLE, psi + d, TOP).mean(0))
+            * (left.angles(STYLE, psi, TOP) - left.angles(STYLE, psi, TOP).mean(0))
+        )
+        for d in np.arange(60) / 60
+    ]
+    assert int(np.argmax(score)) in (0, 59, 1)
+
+
 def test_search_cost_prefers_speed_along_the_heading_and_charges_drift() -> None:
     base = dict(
         vx=20.0,

@@ -111,6 +111,33 @@ class Primitive:
             self.yaw_rate_dps,
         )
 
+    def shifted(self, cycles: float) -> Primitive:
+        """The same gait with its clock ``cycles`` ahead: every leg's phase moves alike, so alone it
+        walks exactly as before; only its timing against other primitives changes."""
+        return Primitive(
+            self.name,
+            self.base_deg,
+            self.amplitude_deg,
+            self.phase + cycles,
+            self.heading_deg,
+            self.speed_mps,
+            self.yaw_rate_dps,
+        )
+
+    def aligned_to(self, other: Primitive, style: GaitStyle, top: float, samples: int = 240) -> Primitive:
+        """This gait shifted in time (:meth:`shifted`) so that its legs' schedules agree best with
+        ``other``'s: the shift that maximises the summed circular cross-correlation of the legs'
+        tendon angles about their cycle means, to 1/``samples`` of a cycle."""
+        psi = np.arange(samples) / samples
+        mine = self.angles(style, psi, top)
+        theirs = other.angles(style, psi, top)
+        mine = mine - mine.mean(axis=0)
+        theirs = theirs - theirs.mean(axis=0)
+        # corr[k] = sum_i sum_n mine_i(n + k) theirs_i(n): mine delayed by k samples matches theirs
+        corr = np.fft.irfft(np.fft.rfft(mine, axis=0) * np.conj(np.fft.rfft(theirs, axis=0)), n=samples, axis=0)
+        k = int(np.argmax(corr.sum(axis=1)))
+        return self.shifted(k / samples)
+
     @staticmethod
     def still(name: str, angle_deg: float) -> Primitive:
         """Standing: every tendon held at ``angle_deg``."""
