@@ -100,20 +100,15 @@ def _override_value(overrides: list[str], key: str) -> str | None:
 
 
 def _claim_run_dir(overrides: list[str], multirun: bool) -> None:
-    """Before Hydra writes into an explicit ``hydra.run.dir``: lock it, and refuse another run's outputs
-    unless ``overwrite=true`` (:mod:`slotexp.rundir`). A sweep directory that holds a sweep is refused too."""
-    from .rundir import claim
+    """Before Hydra writes into an explicit ``hydra.run.dir`` (or ``hydra.sweep.dir`` with ``-m``): lock it,
+    and refuse another run's (or sweep's) outputs unless ``overwrite=true`` (:mod:`slotexp.rundir`)."""
+    from .rundir import claim, claim_sweep
 
     overwrite = (_override_value(overrides, "overwrite") or "false").lower() in ("true", "yes", "on", "1")
-    if multirun:
-        sweep = _override_value(overrides, "hydra.sweep.dir")
-        if sweep and (Path(sweep) / "multirun.yaml").exists() and not overwrite:
-            fail(f"{sweep} holds another sweep: choose another hydra.sweep.dir, or add overwrite=true")
-        return
-    run_dir = _override_value(overrides, "hydra.run.dir")
-    if run_dir:
+    directory = _override_value(overrides, "hydra.sweep.dir" if multirun else "hydra.run.dir")
+    if directory:
         try:
-            claim(Path(run_dir), overwrite)
+            (claim_sweep if multirun else claim)(Path(directory), overwrite)
         except UserError as exc:
             fail(str(exc))
 
@@ -327,6 +322,12 @@ def _hydra_task(cfg) -> None:
         word = "terminated" if signum == signal.SIGTERM else "interrupted"
         typer.echo(f"{word}: the logs written so far are valid and readable in {out_dir}", err=True)
         typer.echo(str(out_dir))
+        from .sweepstop import is_sweep_worker
+
+        if is_sweep_worker():  # the log is closed: end the job process, which the sweep's parent waits for
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(128 + signum)
         raise SystemExit(128 + signum) from None
     typer.echo(str(out_dir))
 
@@ -352,10 +353,20 @@ def run(ctx: typer.Context) -> None:
         precheck(overrides, multirun)
         _check_hydra_dirs(overrides)
         _claim_run_dir(overrides, multirun)
+    if multirun:
+        from .sweepstop import become_sweep_parent
+
+        become_sweep_parent()
     register_schemas()
     sys.argv = ["slot", *args]
     main_fn = hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")(_hydra_task)
-    main_fn()
+    try:
+        main_fn()
+    except KeyboardInterrupt as exc:  # a sweep's parent (a single run reports from inside its job)
+        signum = _stop_signal(exc)
+        word = "terminated" if signum == signal.SIGTERM else "interrupted"
+        typer.echo(f"{word}: each running job closed its log; jobs not started were not run", err=True)
+        raise SystemExit(128 + signum) from None
 
 
 def _hardware_task(cfg) -> None:

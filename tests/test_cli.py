@@ -427,6 +427,21 @@ def test_multirun_sweeps_solvers_with_joblib(tmp_path: Path) -> None:
         assert not log.truncated
         assert log.metadata["run"]["solver"] == solver
         assert yaml.safe_load(log.metadata["config"]["yaml"])["solver"]["name"] == solver
+    # a second sweep into the same directory would mix its jobs with these: refused, then replaced on request
+    again = [
+        "run",
+        "-m",
+        "experiment=simulate",
+        "experiment.duration=0.5",
+        "solver=daqp",
+        f"hydra.sweep.dir={sweep_dir}",
+    ]
+    before = (jobs[1] / "logs" / "walk.mcap").read_bytes()
+    assert_one_line_error(slot(*again, cwd=tmp_path), str(sweep_dir), "overwrite=true")
+    assert (jobs[1] / "logs" / "walk.mcap").read_bytes() == before
+    ok(slot(*again, "overwrite=true", cwd=tmp_path))
+    (job,) = [p for p in sweep_dir.iterdir() if p.is_dir()]  # job 1 of the earlier sweep is gone, not mixed in
+    assert job.name.endswith("solver=daqp")
 
 
 # --------------------------------------------------------------------------- a controller that never works
@@ -516,6 +531,14 @@ def test_a_stop_signal_to_the_parent_alone_stops_every_worker_and_closes_every_l
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     logs = [run_dir / "logs" / f"{name}.mcap" for name in ("baseline", "roll")]
+    stdout, _ = _stop_parent_once_logging(proc, logs, signum)
+    assert last_line(stdout) == str(run_dir)
+    assert not (run_dir / "logs" / "pitch.mcap").exists()  # queued, never started
+
+
+def _stop_parent_once_logging(proc: subprocess.Popen, logs: list[Path], signum: int) -> tuple[str, str]:
+    """Send ``signum`` to ``proc``'s PID alone once every log has data; check the exit, the one line on
+    stderr, that no worker outlives it and that every log reads completely. Returns (stdout, stderr)."""
     try:
         deadline = time.monotonic() + 180
         while time.monotonic() < deadline and proc.poll() is None:
@@ -534,15 +557,53 @@ def test_a_stop_signal_to_the_parent_alone_stops_every_worker_and_closes_every_l
     assert "Traceback" not in stderr, stderr
     word = "terminated" if signum == signal.SIGTERM else "interrupted"
     assert [ln for ln in stderr.splitlines() if ln.startswith(word)], stderr
-    assert last_line(stdout) == str(run_dir)
     time.sleep(1.0)
-    assert not [pid for pid in workers if _alive(pid)], "a worker outlived its parent"
+    assert not [pid for pid in workers if _alive(pid) and "resource_tracker" not in _cmdline(pid)], (
+        "a worker outlived its parent"
+    )
     for path in logs:
         log = read_log(path)
         assert log.truncated is False and 0 < len(log["/state"]) < 600 * 30
         with path.open("rb") as fh:
             assert sum(1 for _ in make_reader(fh).iter_messages()) > 0
-    assert not (run_dir / "logs" / "pitch.mcap").exists()  # queued, never started
+    return stdout, stderr
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_text().replace("\0", " ")
+    except OSError:
+        return ""
+
+
+def test_a_stop_signal_to_a_sweeps_parent_closes_every_running_jobs_log_and_starts_no_other(tmp_path: Path) -> None:
+    # slot run -m: the joblib launcher ends its workers with SIGKILL when the parent stops; the parent first
+    # passes the signal on and waits for each job to close its log (slotexp/sweepstop.py)
+    sweep = tmp_path / "sweep"
+    proc = subprocess.Popen(
+        [
+            *SLOT_CMD,
+            "run",
+            "-m",
+            "experiment=simulate",
+            "gait=walk,crawl,omni60",
+            "experiment.duration=600",
+            "hydra.launcher.n_jobs=2",
+            f"hydra.sweep.dir={sweep}",
+        ],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    logs: list[Path] = []
+    deadline = time.monotonic() + 120  # until the two running jobs have opened their logs
+    while time.monotonic() < deadline and len(logs) < 2:
+        logs = sorted(sweep.glob("*/logs/*.mcap"))
+        time.sleep(0.1)
+    _stop_parent_once_logging(proc, logs, signal.SIGTERM)
+    assert not list(sweep.glob("2_*")), "a job queued behind the running two was started"
 
 
 # --------------------------------------------------------------------------- an output directory is never reused

@@ -86,6 +86,7 @@ def test_closed_loop_on_the_soft_plant_logs_legs_and_animates(tmp_path):
     assert {"FL_n0.0", "FL_n10.2", "RR_n30.1"} <= set(log["/markers"].columns)
     assert log["/legs/tendon"][["tension_n.0", "tension_n.3"]].to_numpy().max() > 10.0
     assert (out / "walk.gif").stat().st_size > 10_000
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".walk.")]  # written aside, then renamed
     conf = yaml.safe_load(log.metadata["config"]["yaml"])
     assert conf["robot"]["actuation"]["slope_n_per_deg"] != 0.107  # plant=cosserat uses the calibrated map
 

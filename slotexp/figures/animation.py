@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.animation import FuncAnimation, PillowWriter
 
+from ..atomic import replacing
 from ..body import quat_to_rot
 from .style import LEG_COLOURS, new_figure
 
@@ -68,8 +69,8 @@ def animate(
 
     anim = FuncAnimation(fig, draw, frames=len(t), blit=False)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    anim.save(path, writer=PillowWriter(fps=fps), dpi=80)
+    with replacing(path) as tmp:  # a stopped save leaves the previous GIF or none, never a torn one
+        anim.save(tmp, writer=PillowWriter(fps=fps), dpi=80)
     return path
 
 
