@@ -220,11 +220,18 @@ def precheck(
         if not value.isascii() and not (value.startswith(("'", '"')) and value.endswith(value[0])):
             quoted = f"{key}='{value}'"
             fail(f'{o}: a value with non-ASCII characters must be quoted for Hydra: write "{quoted}"')
-    user = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
-    try:
-        parsed = OverridesParser.create().parse_overrides(user)
-    except HydraException as exc:
-        fail(f"cannot parse override: {str(exc).splitlines()[0]}")
+    parser = OverridesParser.create()
+    every = []
+    for o in overrides:  # one at a time, so that the message can name the one that does not parse
+        try:
+            every.append(parser.parse_override(o))
+        except HydraException as exc:
+            key, _, value = o.partition("=")
+            fail(f"cannot parse override {o!r} ({str(exc).splitlines()[0]}): quote the value, e.g. \"{key}='{value}'\"")
+    for p in every:
+        if p.key_or_group.startswith("hydra") and p.is_sweep_override():
+            fail(f"{p.input_line}: Hydra cannot sweep its own settings: give {p.key_or_group} one value")
+    parsed = [p for p in every if not p.key_or_group.startswith("hydra")]
     choices: list[list[str]] = []
     _check_keys(parsed, groups, root)
     for o in parsed:
@@ -255,7 +262,7 @@ def precheck(
                 fail(str(exc))
             except (OmegaConfBaseException, ValueError, TypeError) as exc:
                 fail(_compose_message(exc))
-        hydra_overrides = [o for o in overrides if o.lstrip("+~").startswith("hydra") and "," not in o]
+        hydra_overrides = [p.input_line for p in every if p.key_or_group.startswith("hydra")]
         if hydra_overrides:  # Hydra's own settings (launcher, run dir): composed with the first combination
             from hydra.conf import HydraConf
 

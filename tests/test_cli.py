@@ -173,6 +173,8 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     (["hydra.rundir=x"], ["unknown key hydra.rundir", "did you mean hydra.run?"]),
     (["hydra.launcher.n_jobs=abc"], ["hydra.launcher.n_jobs=abc"]),
     (["hydra/launcher=jobllib"], ["jobllib", "joblib"]),
+    (["hydra.sweep.dir=out[1,2]"], ["hydra.sweep.dir=out[1,2]", "quote", "hydra.sweep.dir='out[1,2]'"]),
+    (["-m", "hydra.launcher.n_jobs=1,2"], ["hydra.launcher.n_jobs=1,2", "one value"]),
     ([""], ["empty"]),
     (["experiment.scenario=bäseline"], ["must be quoted", "experiment.scenario='bäseline'"]),
     (["sim.dt=1e-9"], ["sim.dt", ">= 1e-06"]),
