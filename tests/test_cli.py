@@ -510,12 +510,26 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+def _spawn(args: list[str], cwd: Path) -> subprocess.Popen:
+    """``slot`` in its own session, as from a terminal: a test run started in the background ignores SIGINT,
+    and an ignored SIGINT is inherited, so the run would rightly never see the Ctrl-C it is sent."""
+    return subprocess.Popen(
+        args,
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_stop_signal_to_the_parent_alone_stops_every_worker_and_closes_every_log(tmp_path: Path, signum) -> None:
     # as timeout, SLURM and systemd send it, to the parent's PID only, with two scenarios running in a pool
     # of two and a third queued behind them
     run_dir = tmp_path / "run"
-    proc = subprocess.Popen(
+    proc = _spawn(
         [
             *SLOT_CMD,
             "run",
@@ -525,12 +539,7 @@ def test_a_stop_signal_to_the_parent_alone_stops_every_worker_and_closes_every_l
             "experiment.n_jobs=2",
             f"hydra.run.dir={run_dir}",
         ],
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        tmp_path,
     )
     logs = [run_dir / "logs" / f"{name}.mcap" for name in ("baseline", "roll")]
     stdout, _ = _stop_parent_once_logging(proc, logs, signum)
@@ -582,7 +591,7 @@ def test_a_stop_signal_to_a_sweeps_parent_closes_every_running_jobs_log_and_star
     # slot run -m: the joblib launcher ends its workers with SIGKILL when the parent stops; the parent first
     # passes the signal on and waits for each job to close its log (slotexp/sweepstop.py)
     sweep = tmp_path / "sweep"
-    proc = subprocess.Popen(
+    proc = _spawn(
         [
             *SLOT_CMD,
             "run",
@@ -593,11 +602,7 @@ def test_a_stop_signal_to_a_sweeps_parent_closes_every_running_jobs_log_and_star
             "hydra.launcher.n_jobs=2",
             f"hydra.sweep.dir={sweep}",
         ],
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
+        tmp_path,
     )
     logs: list[Path] = []
     deadline = time.monotonic() + 120  # until the two running jobs have opened their logs
