@@ -122,7 +122,7 @@ def test_cycle_blend_alternates_whole_primitives_so_the_mean_velocity_points_whe
     assert weights["l"] / (weights["f"] + weights["l"]) == pytest.approx(0.05)
 
 
-def test_the_library_times_each_primitive_to_its_neighbour_and_the_fastest_keeps_its_clock() -> None:
+def test_the_library_times_each_primitive_to_its_neighbour_and_starts_the_clock_where_the_search_did() -> None:
     f = _prim("f", 0.0, 0.03)
     late = Primitive("l", f.base_deg, f.amplitude_deg, f.phase + 0.4, 90.0, 0.02)  # f's legs, 0.4 cycles off
     odd = Primitive("b", f.base_deg, f.amplitude_deg, np.array([0.3, 0.1, -0.2, 0.05]), 180.0, 0.02)  # other sequence
@@ -149,6 +149,13 @@ def test_the_library_times_each_primitive_to_its_neighbour_and_the_fastest_keeps
         for d in np.arange(60) / 60
     ]
     assert int(np.argmax(score)) in (0, 59, 1)
+    # a robot sent along a moved primitive starts its clock where that primitive's search started it
+    for original, velocity in ((late, [0.0, 0.01]), (odd, [-0.01, 0.0]), (f, [0.01, 0.001])):
+        psi0 = lib.start_phase(np.array(velocity))
+        moved = by_name[original.name]
+        assert 0.0 <= psi0 < 1.0
+        np.testing.assert_allclose(moved.angles(STYLE, psi0, TOP), original.angles(STYLE, 0.0, TOP), atol=1e-9)
+    assert lib.start_phase(np.zeros(2)) == 0.0
 
 
 def test_search_cost_prefers_speed_along_the_heading_and_charges_drift() -> None:

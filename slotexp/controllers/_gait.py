@@ -42,8 +42,8 @@ class GaitController(MpcController):
         self.standing = float(tendon_angle_deg(np.array([self.weight / 4.0]), cfg.robot.actuation, self.top)[0])
         self.library = GaitLibrary.from_config(library[cfg.gait.style], self.standing, self.top, cfg.controller.blend)
         self.style = self.library.style
-        self.psi = 0.0  # the gait clock's phase, cycles
         self.velocity = np.asarray(cfg.gait.velocity, dtype=float).copy()  # body-frame gait command, m/s
+        self.psi = self.library.start_phase(self.velocity)  # the gait clock's phase, cycles
         self.yaw_rate = float(np.degrees(cfg.gait.yaw_rate))  # deg/s
         self.origin: np.ndarray | None = None
         self.command: GaitCommand | None = None

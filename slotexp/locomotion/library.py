@@ -25,7 +25,9 @@ primitives at the style's clock (:func:`.primitives.mix`):
 Every primitive is timed to its neighbours when the library is built
 (:meth:`GaitLibrary._aligned`): shifting a gait's whole clock changes nothing it
 does alone, but both blends pass from one primitive to the next, and only legs
-that move together make a gait between them.
+that move together make a gait between them. A robot starting from rest starts
+the clock where the search started the primitive nearest its command
+(:meth:`GaitLibrary.start_phase`), so the library's measurements hold from the start.
 
 The mix is not exactly linear in what it does on the plant; the controller's
 feedback closes that gap (:mod:`slotexp.controllers.gait_mpc`).
@@ -90,6 +92,9 @@ class GaitLibrary:
                 "run slot run experiment=gait_search (see the README)"
             )
         self.translation = self._aligned(sorted(kept, key=lambda p: p.heading_deg), kept[0], style, top_deg)
+        measured = {p.name: p for p in kept}
+        # how far each primitive's clock was moved, cycles: a robot that starts on it starts where the search did
+        self._shift = {p.name: float(p.phase[0] - measured[p.name].phase[0]) for p in self.translation}
         turning = [p.aligned_to(kept[0], style, top_deg) for p in primitives if p.heading_deg is None]
         self.turn_left = max(turning, key=lambda p: p.yaw_rate_dps, default=None)
         self.turn_right = min(turning, key=lambda p: p.yaw_rate_dps, default=None)
@@ -172,6 +177,18 @@ class GaitLibrary:
             bound = max(abs(across_a), abs(across_b))
             self._owed = float(np.clip(self._owed + (across_b if self._second else across_a), -bound, bound))
         return b if self._second else a
+
+    def start_phase(self, velocity_body: np.ndarray) -> float:
+        """Where the gait clock starts (cycles in [0, 1)) for a robot commanded ``velocity_body`` from rest:
+        so that the primitive nearest the command starts at the point of its cycle at which the search
+        started and measured it, however far :meth:`_aligned` moved its clock. (The two mirror-image
+        lateral gaits otherwise started half a cycle apart, and settled into different stick-slip
+        patterns: 90 deg 14.9 mm/s, 270 deg 12.1.)"""
+        v = np.asarray(velocity_body, float)
+        if not np.any(v):
+            return 0.0
+        a, b, lam = self._bracket(float(np.degrees(np.arctan2(v[1], v[0]))))
+        return float(-self._shift[(a if lam < 0.5 else b).name] % 1.0)
 
     @property
     def max_yaw_rate_dps(self) -> float:
