@@ -177,7 +177,9 @@ def _plot(table: pd.DataFrame, path: Path) -> None:
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
     labels = [
         f"{r['solver']}"
-        + "".join(f"\n{c}={r[c]}" for c in table.columns if c not in _FIXED and isinstance(r[c], str) and r[c])
+        + "".join(  # key and value on lines of their own: a sweep over vectors has long values side by side
+            f"\n{c}=\n{r[c]}" for c in table.columns if c not in _FIXED and isinstance(r[c], str) and r[c]
+        )
         for _, r in table.iterrows()
     ]
     x = np.arange(len(table))
@@ -196,7 +198,7 @@ def _plot(table: pd.DataFrame, path: Path) -> None:
         top_count = float(np.nanmax(table["infeasible_steps"])) if len(table) else 0.0
         bottom.set_ylim(0, max(1.0, 1.25 * top_count))
     bottom.set_ylabel("infeasible steps")
-    bottom.set_xticks(x, labels, fontsize=8)
+    bottom.set_xticks(x, labels, fontsize=7)
     save(fig, path)
 
 
