@@ -1,0 +1,171 @@
+"""What the 3D view of a run shows at one MPC step, as plain geometry (numpy, no file or viewer code).
+
+A :class:`SceneFrame` holds the torso box, each leg's centreline (every node), each
+foot's ground-reaction force as an arrow, and the reference and actual paths so far.
+:class:`SceneTrack` builds one per step and keeps the two paths; the log and the live
+view (``slotexp/foxglove_scene.py``) turn the same frame into Foxglove messages, so
+what a log shows and what a live client sees cannot differ.
+
+Force arrows: tail at the foot, pointing along the applied force (world frame), length
+``FORCE_SCALE_M_PER_N`` metres per newton (1 cm/N: a foot carrying a quarter of the
+robot's weight, about 5.3 N, draws a 5.3 cm arrow, about half a leg). The last
+``ARROW_HEAD_FRACTION`` of the length is the head.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+FORCE_SCALE_M_PER_N = 0.01
+ARROW_HEAD_FRACTION = 0.25
+PATH_SPACING_M = 0.002  # a path keeps a point each time the robot has moved this far: bounded by distance, not time
+PATH_MAX_POINTS = 2000  # beyond this a path keeps every other point (messages stay small on long runs)
+
+
+@dataclass(frozen=True)
+class Arrow:
+    """An arrow with its tail at ``tail`` (3,), along unit ``direction`` (3,), ``length`` metres long."""
+
+    tail: np.ndarray
+    direction: np.ndarray
+    length: float
+
+    @property
+    def orientation_xyzw(self) -> np.ndarray:
+        """The rotation taking +x (an arrow's axis at identity) onto ``direction``, as x, y, z, w."""
+        return rotation_from_x(self.direction)
+
+
+@dataclass(frozen=True)
+class SceneFrame:
+    """One step of the 3D scene, world frame, metres."""
+
+    t: float
+    position: np.ndarray  # torso centre (3,)
+    quaternion_wxyz: np.ndarray  # torso attitude (4,)
+    torso_size: np.ndarray  # box edges (3,)
+    leg_names: tuple[str, ...]
+    legs: np.ndarray  # (4, N, 3) centreline nodes, root to foot
+    forces: np.ndarray  # (4, 3) applied ground-reaction forces, N
+    arrows: tuple[Arrow, ...]  # one per leg, scaled forces at the feet
+    reference_path: np.ndarray  # (M, 3)
+    actual_path: np.ndarray  # (K, 3)
+
+
+def rotation_from_x(direction: np.ndarray) -> np.ndarray:
+    """Shortest rotation (x, y, z, w) from the +x axis to ``direction``; identity for a zero vector."""
+    d = np.asarray(direction, dtype=float)
+    n = float(np.linalg.norm(d))
+    if n == 0.0 or not np.isfinite(n):
+        return np.array([0.0, 0.0, 0.0, 1.0])
+    d = d / n
+    if d[0] < -1.0 + 1e-12:  # opposite to +x: half a turn about z
+        return np.array([0.0, 0.0, 1.0, 0.0])
+    q = np.array([0.0, -d[2], d[1], 1.0 + d[0]])  # (x cross d, 1 + x . d), normalised
+    return q / np.linalg.norm(q)
+
+
+def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCALE_M_PER_N) -> tuple[Arrow, ...]:
+    """One arrow per foot: tail at the foot, along the force, ``scale`` metres per newton."""
+    out = []
+    for foot, f in zip(np.asarray(feet, dtype=float), np.asarray(forces, dtype=float)):
+        magnitude = float(np.linalg.norm(f)) if np.all(np.isfinite(f)) else 0.0
+        direction = f / magnitude if magnitude > 0 else np.array([1.0, 0.0, 0.0])
+        out.append(Arrow(foot.copy(), direction, magnitude * scale))
+    return tuple(out)
+
+
+def straight_legs(corners: np.ndarray, feet: np.ndarray) -> np.ndarray:
+    """Legs drawn as straight segments (4, 2, 3) from root to foot, where no leg shape is known
+    (the ideal plant and the hardware's nominal feet)."""
+    return np.stack([np.asarray(corners, dtype=float), np.asarray(feet, dtype=float)], axis=1)
+
+
+class _Path:
+    """Points along a trajectory, one every ``spacing`` metres, plus the latest point.
+
+    Kept points only grow (or halve past ``max_points``), so a consumer can convert
+    the new ones alone; the array is preallocated so a step costs no copy of the path.
+    """
+
+    def __init__(self, spacing: float, max_points: int) -> None:
+        self._spacing = spacing
+        self._max = max_points
+        self._buf = np.empty((max_points + 2, 3))
+        self._n = 0
+
+    def add(self, point: np.ndarray) -> np.ndarray:
+        """Keep ``point`` if it is ``spacing`` from the last kept one; the path (kept points, then ``point``)."""
+        p = np.asarray(point, dtype=float)
+        if not np.all(np.isfinite(p)):
+            return self._buf[: self._n].copy()
+        if self._n == 0 or np.linalg.norm(p - self._buf[self._n - 1]) >= self._spacing:
+            if self._n == self._max:
+                last = self._buf[self._n - 1].copy()
+                half = self._buf[0 : self._n : 2].copy()
+                self._n = len(half)
+                self._buf[: self._n] = half
+                if not np.array_equal(self._buf[self._n - 1], last):
+                    self._buf[self._n] = last
+                    self._n += 1
+            self._buf[self._n] = p
+            self._n += 1
+            return self._buf[: self._n].copy()
+        out = self._buf[: self._n + 1].copy()
+        out[self._n] = p
+        return out
+
+
+class SceneTrack:
+    """Builds each step's :class:`SceneFrame` and remembers the reference and actual paths."""
+
+    def __init__(
+        self,
+        leg_names: Sequence[str],
+        torso_size: Sequence[float],
+        spacing: float = PATH_SPACING_M,
+        max_points: int = PATH_MAX_POINTS,
+    ) -> None:
+        self.leg_names = tuple(leg_names)
+        self.torso_size = np.asarray(torso_size, dtype=float)
+        self._reference = _Path(spacing, max_points)
+        self._actual = _Path(spacing, max_points)
+
+    def frame(
+        self,
+        t: float,
+        position: np.ndarray,
+        quaternion_wxyz: np.ndarray,
+        reference_position: np.ndarray,
+        legs: np.ndarray,
+        feet: np.ndarray,
+        forces: np.ndarray,
+    ) -> SceneFrame:
+        """The scene at ``t``: ``legs`` (4, N, 3) root to foot, ``forces`` (4, 3) applied at ``feet`` (4, 3)."""
+        return SceneFrame(
+            t=float(t),
+            position=np.asarray(position, dtype=float),
+            quaternion_wxyz=np.asarray(quaternion_wxyz, dtype=float),
+            torso_size=self.torso_size,
+            leg_names=self.leg_names,
+            legs=np.asarray(legs, dtype=float),
+            forces=np.asarray(forces, dtype=float),
+            arrows=force_arrows(feet, forces),
+            reference_path=self._reference.add(reference_position),
+            actual_path=self._actual.add(position),
+        )
+
+
+__all__ = [
+    "Arrow",
+    "SceneFrame",
+    "SceneTrack",
+    "FORCE_SCALE_M_PER_N",
+    "ARROW_HEAD_FRACTION",
+    "force_arrows",
+    "rotation_from_x",
+    "straight_legs",
+]
