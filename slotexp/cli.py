@@ -528,6 +528,29 @@ def figures(
 
 
 @app.command()
+def layout(
+    out: Path = typer.Argument(Path("slot_layout.json"), help="Where to write the layout (a .json file)."),
+) -> None:
+    """Write the Foxglove layout for slotexp runs: 3D scene, CoM vs reference, cost, tendon angles, MPC time.
+
+    In Foxglove: Layouts -> Import from file, then open a run's logs/*.mcap (or a live
+    run's ws://127.0.0.1:8765).
+    """
+    from .atomic import write_text
+    from .layout import SHIPPED
+
+    if out.is_dir():
+        fail(f"{out} is a directory: give a file name, e.g. {out / 'slot_layout.json'}")
+    check_output_dir(out.parent if str(out.parent) else Path("."), "the layout's directory")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_text(out, SHIPPED.read_text())
+    except OSError as exc:
+        fail(f"{out}: cannot write the layout ({exc.strerror or exc})")
+    typer.echo(str(out))
+
+
+@app.command()
 def summarize(
     multirun_dir: Path = typer.Argument(..., help="A multirun's output directory (slot run -m ...)."),
 ) -> None:

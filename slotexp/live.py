@@ -12,6 +12,7 @@ microseconds per topic. :class:`slotexp.simulation.Tee` sends one step to both t
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Mapping
 from typing import Any
 
@@ -30,6 +31,7 @@ class LiveView:
     """A Foxglove WebSocket server and one channel per topic, created on the topic's first message."""
 
     def __init__(self, port: int = DEFAULT_PORT, host: str = HOST, name: str = "slotexp") -> None:
+        logging.getLogger("foxglove").setLevel(logging.WARNING)  # the server's start/stop INFO lines: noise on stderr
         self._context = foxglove.Context()
         try:
             self._server = foxglove.start_server(name=name, host=host, port=int(port), context=self._context)

@@ -189,3 +189,23 @@ def test_tee_writes_the_same_steps_to_the_log_and_the_view(tmp_path: Path) -> No
         run_closed_loop(cfg, cfg.scenarios["baseline"], 0.2, Tee(rec, view))
     log = read_log(tmp_path / "a.mcap")
     assert len(log["/state"]) == 6 and set(log.scene_topics) == {SCENE_TOPIC, TRANSFORMS_TOPIC}
+
+
+def test_shipped_layout_is_the_built_one_and_plots_only_what_a_run_logs(soft_log: Path, tmp_path: Path) -> None:
+    from slotexp.layout import SHIPPED, layout_json, plotted_paths
+    from tests.helpers import ok, slot
+
+    assert SHIPPED.read_text() == layout_json()  # regenerate with slotexp.layout after changing it
+    log = read_log(soft_log)
+    for path in plotted_paths():
+        topic, _, field = path.partition(".")
+        column = field.replace("[", ".").replace("]", "")
+        assert topic in log and column in log[topic].columns, path
+    out = tmp_path / "sub" / "layout.json"
+    proc = ok(slot("layout", out, cwd=tmp_path))
+    assert proc.stdout.strip().splitlines()[-1] == str(out)
+    layout = json.loads(out.read_text())
+    panels = json.dumps(layout)
+    assert '"panelType": "ThreeDee"' in panels and '"/scene"' in panels
+    bad = slot("layout", tmp_path, cwd=tmp_path)
+    assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "Traceback" not in bad.stderr
