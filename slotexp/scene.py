@@ -95,23 +95,24 @@ class _Path:
         self._max = max_points
         self._buf = np.empty((max_points + 2, 3))
         self._n = 0
+        self._last: list[float] = []
 
-    def add(self, point: np.ndarray) -> np.ndarray:
+    def add(self, point: Sequence[float]) -> np.ndarray:
         """Keep ``point`` if it is ``spacing`` from the last kept one; the path (kept points, then ``point``)."""
-        p = np.asarray(point, dtype=float)
-        if not np.all(np.isfinite(p)):
+        p = [float(v) for v in point]
+        if not all(math.isfinite(v) for v in p):
             return self._buf[: self._n].copy()
-        if self._n == 0 or np.linalg.norm(p - self._buf[self._n - 1]) >= self._spacing:
+        if self._n == 0 or math.dist(p, self._last) >= self._spacing:
             if self._n == self._max:
-                last = self._buf[self._n - 1].copy()
                 half = self._buf[0 : self._n : 2].copy()
                 self._n = len(half)
                 self._buf[: self._n] = half
-                if not np.array_equal(self._buf[self._n - 1], last):
-                    self._buf[self._n] = last
+                if self._buf[self._n - 1].tolist() != self._last:
+                    self._buf[self._n] = self._last
                     self._n += 1
             self._buf[self._n] = p
             self._n += 1
+            self._last = p
             return self._buf[: self._n].copy()
         out = self._buf[: self._n + 1].copy()
         out[self._n] = p

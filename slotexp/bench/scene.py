@@ -2,14 +2,14 @@
 
 The same closed-loop walk (``simulate``'s baseline on the configured plant: the soft plant
 ``plant=cosserat`` by default, the robot the scene draws; ``slot bench scene plant=ideal`` for
-the ideal plant, a loop about 20 times faster and so the worst case for any logging) is run to
-an MCAP log three ways, in turns so that load on the machine hits all three alike: numbers only
-(the scene switched off), numbers and scene (what every run does now), and numbers, scene and a
-live view with no client connected (what ``live=true`` and ``slot hardware`` add when nobody
-watches). Each MPC step is timed from the end of the previous one (controller, plant, logging:
-the whole step); the first step of each run is left out (one-off setup). ``extra.overhead_pct``
-is the scene's share: the difference of the median steps over the numbers-only median; the
-goal is < 10 %.
+the ideal plant, a loop about 20 times faster and so the worst case for any logging) is run in
+turns, so that load on the machine hits every variant alike: not logged (for scale), logged with
+the numbers only (the scene switched off), with numbers and scene (what every run does now), and
+with numbers, scene and a live view that no client is connected to (what ``live=true`` and
+``slot hardware`` add when nobody watches). Each MPC step is timed from the end of the previous
+one (controller, plant, logging: the whole step); the first step of each run is left out
+(one-off setup). ``extra.overhead_pct`` is a variant's extra median step time over the
+numbers-only median; the scene's goal is < 10 %.
 """
 
 from __future__ import annotations
@@ -43,6 +43,10 @@ def _timed_run(cfg: SlotConfig, duration: float, path: Path, variant: str) -> tu
         stamps.append(time.perf_counter())
 
     scenario = cfg.scenarios["baseline"]
+    if variant == "none":
+        start = time.perf_counter()
+        run_closed_loop(cfg, scenario, duration, None, progress)
+        return np.diff(np.array([start, *stamps]))[1:], 0
     if variant == "numbers":
         with _NumbersOnly(path) as rec:
             start = time.perf_counter()
@@ -66,6 +70,7 @@ def bench_scene(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     out_dir.mkdir(parents=True, exist_ok=True)
     duration = DURATION_S.get(cfg.plant.name, 3.0)
     variants = {
+        "none": "no log (for scale)",
         "numbers": "log: numbers only",
         "scene": "log: numbers + scene",
         "live": "log: numbers + scene + live view, no client",

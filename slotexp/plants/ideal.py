@@ -59,7 +59,7 @@ class IdealPlant:
     def legs(self) -> np.ndarray:
         """Straight segments from each torso corner to its force point: the ideal plant has no legs."""
         rot = quat_to_rot(self._s[3:7])
-        return straight_legs(self._s[0:3] + self._corners @ rot.T, self.feet())
+        return straight_legs(self._s[0:3] + self._corners @ rot.T, self._s[0:3] + self._points @ rot.T)
 
     def telemetry(self) -> dict[str, dict]:
         return {}
