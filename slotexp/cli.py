@@ -342,7 +342,8 @@ def run(ctx: typer.Context) -> None:
     robot (slot), and the scenarios under scenarios.<name> (baseline, roll, pitch,
     height, velocity, combined, noise).
     Use -m for a multirun sweep (a,b,c values), --cfg job to print the composed
-    config, hydra.run.dir=DIR to choose the output directory.
+    config, hydra.run.dir=DIR to choose the output directory, live=true to stream the
+    run to Foxglove as well (ws://127.0.0.1:8765; live_port=N to change it).
     """
     import hydra
 
@@ -403,7 +404,8 @@ def hardware(
 
     Groups: hardware (xl430), odometry (zmq, replay, sim), and robot, gait, solver, actuation, plant as for `slot run`.
 
-    Keys: hardware.port, hardware.baudrate, hardware.ids, odometry.endpoint, duration (s; default: until Ctrl-C).
+    Keys: hardware.port, hardware.baudrate, hardware.ids, odometry.endpoint, duration (s; default: until Ctrl-C),
+    live (default true: stream to Foxglove on ws://127.0.0.1:8765), live_port.
 
     Writes logs/hardware.mcap to experiments/hardware/<timestamp>/ (or hydra.run.dir=DIR); prints it last.
 
