@@ -80,32 +80,35 @@ def _strip(points: np.ndarray | list[Point3], color: Color) -> LinePrimitive:
     return LinePrimitive(thickness=LINE_THICKNESS_M, points=points, color=color)
 
 
-class _PathPoints:
-    """The paths' Point3 lists, kept between steps: a path only grows, so a step converts its new points alone
-    (converting the whole path every step was most of the scene's cost on a fast loop)."""
+class _PathEntities:
+    """The path entities, rebuilt only when their path gained a point (:class:`slotexp.scene.SceneTrack`
+    returns the same array until then): converting a whole path every step was most of the scene's cost on
+    a fast loop. A rebuilt entity converts only the points that are new."""
 
     def __init__(self) -> None:
-        self._rows: dict[str, list[list[float]]] = {}
+        self._source: dict[str, np.ndarray] = {}
+        self._entity: dict[str, SceneEntity] = {}
         self._points: dict[str, list[Point3]] = {}
 
-    def __call__(self, key: str, path: np.ndarray) -> list[Point3]:
-        rows = path.tolist()
-        old_rows, old_points = self._rows.get(key, []), self._points.get(key, [])
-        n = min(len(old_rows), len(rows))
-        keep = 0
-        for k in (n, n - 1):  # all the cached points, or all but the last (the latest point, since moved on)
-            if k > 0 and old_rows[k - 1] == rows[k - 1]:
-                keep = k
-                break
-        points = old_points[:keep] + [Point3(x=r[0], y=r[1], z=r[2]) for r in rows[keep:]]
-        self._rows[key], self._points[key] = rows, points
-        return points
+    def __call__(self, key: str, path: np.ndarray, stamp: Timestamp, color: Color) -> SceneEntity:
+        if self._source.get(key) is path:
+            return self._entity[key]
+        old = self._points.get(key, [])
+        prev = self._source.get(key)
+        keep = (
+            len(old) if prev is not None and len(prev) <= len(path) and np.array_equal(prev, path[: len(prev)]) else 0
+        )
+        points = old[:keep] + [Point3(x=r[0], y=r[1], z=r[2]) for r in path[keep:].tolist()]
+        entity = SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id=f"path/{key}", lines=[_strip(points, color)])
+        self._source[key], self._points[key], self._entity[key] = path, points, entity
+        return entity
 
 
-def scene_update(frame: SceneFrame, path_points: _PathPoints | None = None) -> SceneUpdate:
-    """The whole scene at one step as one ``foxglove.SceneUpdate`` (world frame)."""
+def scene_update(frame: SceneFrame, paths: _PathEntities | None = None) -> SceneUpdate:
+    """The whole scene at one step as one ``foxglove.SceneUpdate`` (world frame). A path entity keeps the
+    timestamp of the step its path last changed (``paths`` reuses it until then)."""
     stamp = timestamp(frame.t)
-    convert = path_points or _PathPoints()
+    paths = paths or _PathEntities()
 
     def entity(id: str, **primitives) -> SceneEntity:
         return SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id=id, **primitives)
@@ -141,9 +144,8 @@ def scene_update(frame: SceneFrame, path_points: _PathPoints | None = None) -> S
                 ],
             )
         )
-    reference = convert("reference", frame.reference_path)
-    entities.append(entity("path/reference", lines=[_strip(reference, _REFERENCE_COLOR)]))
-    entities.append(entity("path/actual", lines=[_strip(convert("actual", frame.actual_path), _ACTUAL_COLOR)]))
+    entities.append(paths("reference", frame.reference_path, stamp, _REFERENCE_COLOR))
+    entities.append(paths("actual", frame.actual_path, stamp, _ACTUAL_COLOR))
     return SceneUpdate(entities=entities)
 
 
@@ -166,7 +168,7 @@ class SceneEncoder:
     """Turns a run's frames, one step after another, into (topic, message) pairs (one per sink)."""
 
     def __init__(self) -> None:
-        self._paths = _PathPoints()
+        self._paths = _PathEntities()
 
     def messages(self, frame: SceneFrame) -> list[tuple[str, SceneUpdate | FrameTransforms]]:
         """(topic, message) pairs of one step's scene, in the order they are written."""

@@ -84,39 +84,29 @@ def straight_legs(corners: np.ndarray, feet: np.ndarray) -> np.ndarray:
 
 
 class _Path:
-    """Points along a trajectory, one every ``spacing`` metres, plus the latest point.
+    """Points along a trajectory, one each time it has moved ``spacing`` metres from the last.
 
-    Kept points only grow (or halve past ``max_points``), so a consumer can convert
-    the new ones alone; the array is preallocated so a step costs no copy of the path.
+    The path ends at most ``spacing`` behind the robot (5 mm against a 125 mm torso) and
+    changes only when it gains a point: :meth:`add` then returns a new array, and otherwise
+    the same one, so a consumer can tell an unchanged path by identity and reuse what it
+    built from it (the scene's most expensive part on a fast loop).
     """
 
     def __init__(self, spacing: float, max_points: int) -> None:
         self._spacing = spacing
         self._max = max_points
-        self._buf = np.empty((max_points + 2, 3))
-        self._n = 0
-        self._last: list[float] = []
+        self._kept: list[list[float]] = []
+        self._points = np.empty((0, 3))
 
     def add(self, point: Sequence[float]) -> np.ndarray:
-        """Keep ``point`` if it is ``spacing`` from the last kept one; the path (kept points, then ``point``)."""
+        """Keep ``point`` if it is ``spacing`` from the last kept one; the kept points (k, 3)."""
         p = [float(v) for v in point]
-        if not all(math.isfinite(v) for v in p):
-            return self._buf[: self._n].copy()
-        if self._n == 0 or math.dist(p, self._last) >= self._spacing:
-            if self._n == self._max:
-                half = self._buf[0 : self._n : 2].copy()
-                self._n = len(half)
-                self._buf[: self._n] = half
-                if self._buf[self._n - 1].tolist() != self._last:
-                    self._buf[self._n] = self._last
-                    self._n += 1
-            self._buf[self._n] = p
-            self._n += 1
-            self._last = p
-            return self._buf[: self._n].copy()
-        out = self._buf[: self._n + 1].copy()
-        out[self._n] = p
-        return out
+        if all(math.isfinite(v) for v in p) and (not self._kept or math.dist(p, self._kept[-1]) >= self._spacing):
+            self._kept.append(p)
+            if len(self._kept) > self._max:  # every other point, the newest always kept
+                self._kept = self._kept[-1::-2][::-1]
+            self._points = np.array(self._kept)
+        return self._points
 
 
 class SceneTrack:
