@@ -20,7 +20,16 @@ import foxglove
 
 from .errors import ConfigError
 from .foxglove_scene import SCENE_TOPIC, TRANSFORMS_TOPIC, SceneEncoder
-from .record import _RESERVED_FIELD, _schema_for, _schema_name, _time_ns, _to_json, pose_messages
+from .record import (
+    _RESERVED_FIELD,
+    POSE_TOPIC,
+    TF_TOPIC,
+    _schema_for,
+    _schema_name,
+    _time_ns,
+    _to_json,
+    pose_messages,
+)
 from .scene import SceneFrame
 
 DEFAULT_PORT = 8765  # Foxglove's default for a WebSocket connection
@@ -74,6 +83,9 @@ class LiveView:
             chan.log(json.dumps(payload, separators=(",", ":")).encode(), log_time=_time_ns(t))
 
     def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None:
+        pose = [self._channels.get(topic) for topic in (POSE_TOPIC, TF_TOPIC)]
+        if all(c is not None and not c.has_sinks() for c in pose):
+            return  # advertised, nobody subscribed
         for topic, schema_name, schema, payload in pose_messages(t, position, quaternion_wxyz):
             chan = self._json_channel(topic, schema_name, schema)
             if chan.has_sinks():
