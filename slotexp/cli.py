@@ -350,7 +350,8 @@ def run(ctx: typer.Context) -> None:
     robot (slot), and the scenarios under scenarios.<name> (baseline, roll, pitch,
     height, velocity, combined, noise).
     Use -m for a multirun sweep (a,b,c values), --cfg job to print the composed
-    config, hydra.run.dir=DIR to choose the output directory.
+    config, hydra.run.dir=DIR to choose the output directory, live=true to stream the
+    run to Foxglove as well (ws://127.0.0.1:8765; live_port=N to change it).
     """
     import hydra
 
@@ -421,7 +422,8 @@ def hardware(
 
     Groups: hardware (xl430), odometry (zmq, replay, sim), and robot, gait, solver, actuation, plant as for `slot run`.
 
-    Keys: hardware.port, hardware.baudrate, hardware.ids, odometry.endpoint, duration (s; default: until Ctrl-C).
+    Keys: hardware.port, hardware.baudrate, hardware.ids, odometry.endpoint, duration (s; default: until Ctrl-C),
+    live (default true: stream to Foxglove on ws://127.0.0.1:8765), live_port.
 
     Writes logs/hardware.mcap to experiments/hardware/<timestamp>/ (or hydra.run.dir=DIR); prints it last.
 
@@ -543,6 +545,29 @@ def figures(
     except UserError as exc:
         fail(str(exc))
     typer.echo(str(run_dir))
+
+
+@app.command()
+def layout(
+    out: Path = typer.Argument(Path("slot_layout.json"), help="Where to write the layout (a .json file)."),
+) -> None:
+    """Write the Foxglove layout for slotexp runs: 3D scene, CoM vs reference, cost, tendon angles, MPC time.
+
+    In Foxglove: Layouts -> Import from file, then open a run's logs/*.mcap (or a live
+    run's ws://127.0.0.1:8765).
+    """
+    from .atomic import write_text
+    from .layout import SHIPPED
+
+    if out.is_dir():
+        fail(f"{out} is a directory: give a file name, e.g. {out / 'slot_layout.json'}")
+    check_output_dir(out.parent if str(out.parent) else Path("."), "the layout's directory")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_text(out, SHIPPED.read_text())
+    except OSError as exc:
+        fail(f"{out}: cannot write the layout ({exc.strerror or exc})")
+    typer.echo(str(out))
 
 
 @app.command()

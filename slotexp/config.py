@@ -404,6 +404,9 @@ class SlotConfig:
     experiment: Any = None
     # replace the outputs of an earlier run in hydra.run.dir (refused otherwise: slotexp/rundir.py)
     overwrite: bool = False
+    # also stream every step to Foxglove over a WebSocket server on localhost (slotexp/live.py)
+    live: bool = False
+    live_port: int = num_field(8765, lo=0, hi=65535, unit="(0: any free port)")
 
 
 # --------------------------------------------------------------------------- checks

@@ -1,14 +1,17 @@
-"""MCAP run logs: one JSON-encoded MCAP file per simulation run.
+"""MCAP run logs: one MCAP file per simulation run.
 
-Files are written so that Foxglove Studio can open them directly (JSON messages
-with ``jsonschema`` schemas, plus the well-known ``foxglove.PoseInFrame`` and
-``foxglove.FrameTransform`` schemas for the torso pose), and so that a run that
-is killed part-way still leaves a readable file: data goes out in small chunks
-and the file object is flushed whenever the writer emits bytes, so everything
+Files are written so that Foxglove can open them directly: the numeric topics are
+JSON messages with ``jsonschema`` schemas (plus the well-known ``foxglove.PoseInFrame``
+and ``foxglove.FrameTransform`` schemas for the torso pose); the 3D scene
+(:meth:`Recorder.write_scene`) is Foxglove's own ``SceneUpdate`` and
+``FrameTransforms``, protobuf-encoded by ``foxglove-sdk`` with the schemas it ships.
+A run that is killed part-way still leaves a readable file: data goes out in small
+chunks and the file object is flushed whenever the writer emits bytes, so everything
 but the last partial chunk survives a SIGKILL.
 
-Reading (:func:`read_log`) turns each topic into a :class:`pandas.DataFrame`
-with a ``t`` column (seconds) followed by the flattened message fields.
+Reading (:func:`read_log`) turns each JSON topic into a :class:`pandas.DataFrame`
+with a ``t`` column (seconds) followed by the flattened message fields; the
+protobuf scene topics are for viewers and are skipped (listed in ``Log.scene_topics``).
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ _MAGIC = b"\x89MCAP0\r\n"
 _NS_PER_S = 1_000_000_000
 _MESSAGE_ENCODING = "json"
 _SCHEMA_ENCODING = "jsonschema"
+_BINARY_ENCODING = "protobuf"  # foxglove-sdk's messages (the 3D scene): not tabular, skipped by read_log
 _RESERVED_FIELD = "t"  # the DataFrame's log-time column
 
 
@@ -179,6 +183,44 @@ FRAME_TRANSFORM_SCHEMA: dict[str, Any] = {
 # --------------------------------------------------------------------------- writing
 
 
+def pose_messages(
+    t: float,
+    position: Sequence[float],
+    quaternion_wxyz: Sequence[float],
+    frame_id: str = "world",
+    child_frame_id: str = "torso",
+) -> list[tuple[str, str, dict[str, Any], dict[str, Any]]]:
+    """The torso pose as (topic, schema name, JSON schema, payload) for ``PoseInFrame`` and ``FrameTransform``.
+
+    Two topics because Foxglove's 3D panel builds its frame tree from
+    FrameTransforms and draws a pose marker from PoseInFrame.
+    The input quaternion is (w, x, y, z); Foxglove stores it as x, y, z, w.
+    Shared by the log and the live view, so both carry the same messages.
+    """
+    p = [float(v) for v in np.asarray(position, dtype=float).ravel()]
+    q = [float(v) for v in np.asarray(quaternion_wxyz, dtype=float).ravel()]
+    if len(p) != 3:
+        raise ValueError(f"position must have 3 elements, got {len(p)}")
+    if len(q) != 4:
+        raise ValueError(f"quaternion_wxyz must have 4 elements, got {len(q)}")
+    log_time = _time_ns(t)
+    stamp = {"sec": log_time // _NS_PER_S, "nsec": log_time % _NS_PER_S}
+    xyz = _to_json({"x": p[0], "y": p[1], "z": p[2]}, "position")
+    quat = _to_json({"x": q[1], "y": q[2], "z": q[3], "w": q[0]}, "quaternion")
+    pose = {"timestamp": stamp, "frame_id": frame_id, "pose": {"position": xyz, "orientation": quat}}
+    tf = {
+        "timestamp": stamp,
+        "parent_frame_id": frame_id,
+        "child_frame_id": child_frame_id,
+        "translation": xyz,
+        "rotation": quat,
+    }
+    return [
+        (POSE_TOPIC, "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA, pose),
+        (TF_TOPIC, "foxglove.FrameTransform", FRAME_TRANSFORM_SCHEMA, tf),
+    ]
+
+
 class _FlushingFile:
     """File wrapper that flushes after every write.
 
@@ -227,6 +269,7 @@ class Recorder:
         self._file: IO[bytes] = open(self.path, "wb")
         self._closed = False
         self._channels: dict[str, _Chan] = {}
+        self._scene: Any = None  # the scene's message builder, made on the first scene (imports foxglove-sdk)
         try:
             self._writer = Writer(
                 _FlushingFile(self._file),  # type: ignore[arg-type]
@@ -295,45 +338,40 @@ class Recorder:
         frame_id: str = "world",
         child_frame_id: str = "torso",
     ) -> None:
-        """Log the torso pose as Foxglove ``PoseInFrame`` and ``FrameTransform``.
+        """Log the torso pose as Foxglove ``PoseInFrame`` and ``FrameTransform`` (:func:`pose_messages`)."""
+        self._check_open()
+        messages = pose_messages(t, position, quaternion_wxyz, frame_id, child_frame_id)
+        for topic, schema_name, schema, payload in messages:
+            self._emit(self._channel(topic, schema_name, schema), _time_ns(t), payload)
 
-        Two topics because Foxglove's 3D panel builds its frame tree from
-        FrameTransforms and draws a pose marker from PoseInFrame.
-        The input quaternion is (w, x, y, z); Foxglove stores it as x, y, z, w.
+    def write_message(self, topic: str, t: float, message: Any) -> None:
+        """Log a ``foxglove-sdk`` message (anything with ``get_schema()`` and ``encode()``) on ``topic``.
+
+        The schema record is the SDK's own (name, encoding and descriptor), so a viewer
+        decodes it exactly as the SDK's MCAP writer would have it.
         """
         self._check_open()
-        p = [float(v) for v in np.asarray(position, dtype=float).ravel()]
-        q = [float(v) for v in np.asarray(quaternion_wxyz, dtype=float).ravel()]
-        if len(p) != 3:
-            raise ValueError(f"position must have 3 elements, got {len(p)}")
-        if len(q) != 4:
-            raise ValueError(f"quaternion_wxyz must have 4 elements, got {len(q)}")
+        chan = self._channels.get(topic)
+        if chan is None:
+            schema = message.get_schema()
+            schema_id = self._writer.register_schema(name=schema.name, encoding=schema.encoding, data=schema.data)
+            encoding = {_SCHEMA_ENCODING: _MESSAGE_ENCODING}.get(schema.encoding, schema.encoding)
+            cid = self._writer.register_channel(topic=topic, message_encoding=encoding, schema_id=schema_id)
+            chan = self._channels[topic] = _Chan(cid)
         log_time = _time_ns(t)
-        stamp = {"sec": log_time // _NS_PER_S, "nsec": log_time % _NS_PER_S}
-        xyz = _to_json({"x": p[0], "y": p[1], "z": p[2]}, "position")
-        quat = _to_json({"x": q[1], "y": q[2], "z": q[3], "w": q[0]}, "quaternion")
-        pose_chan = self._channel(POSE_TOPIC, "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA)
-        self._emit(
-            pose_chan,
-            log_time,
-            {
-                "timestamp": stamp,
-                "frame_id": frame_id,
-                "pose": {"position": xyz, "orientation": quat},
-            },
+        self._writer.add_message(
+            channel_id=chan.id, log_time=log_time, publish_time=log_time, data=message.encode(), sequence=chan.sequence
         )
-        tf_chan = self._channel(TF_TOPIC, "foxglove.FrameTransform", FRAME_TRANSFORM_SCHEMA)
-        self._emit(
-            tf_chan,
-            log_time,
-            {
-                "timestamp": stamp,
-                "parent_frame_id": frame_id,
-                "child_frame_id": child_frame_id,
-                "translation": xyz,
-                "rotation": quat,
-            },
-        )
+        chan.sequence = (chan.sequence + 1) & 0xFFFFFFFF
+
+    def write_scene(self, frame: Any) -> None:
+        """Log one step's 3D scene (a :class:`slotexp.scene.SceneFrame`) as Foxglove messages."""
+        if self._scene is None:
+            from .foxglove_scene import SceneEncoder
+
+            self._scene = SceneEncoder()
+        for topic, message in self._scene.messages(frame):
+            self.write_message(topic, frame.t, message)
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         """Write an MCAP Metadata record (written immediately, so it survives a crash)."""
@@ -398,6 +436,7 @@ class Log:
     topics: dict[str, pd.DataFrame]
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     truncated: bool = False
+    scene_topics: tuple[str, ...] = ()  # protobuf (Foxglove scene) topics present but not tabulated
 
     def __getitem__(self, topic: str) -> pd.DataFrame:
         try:
@@ -441,9 +480,13 @@ def is_closed(path: str | Path) -> bool:
 def _read_indexed(f: IO[bytes], size: int) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
     """Read through the summary index; raises if the file has no valid footer/summary."""
     reader = _indexed_reader(f, size)
-    raw = [
+    channels = reader.get_summary().channels.values()
+    binary = {c.topic for c in channels if c.message_encoding == _BINARY_ENCODING}
+    wanted = sorted({c.topic for c in channels} - binary)
+    raw: list[_Raw] = [(topic, _BINARY_ENCODING, 0, b"") for topic in sorted(binary)]  # named, not decoded
+    raw += [
         (channel.topic, channel.message_encoding, message.log_time, message.data)
-        for _schema, channel, message in reader.iter_messages(log_time_order=True)
+        for _schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True)
     ]
     metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     return raw, metadata
@@ -545,7 +588,8 @@ def _frame(rows: list[tuple[int, dict[str, Any]]]) -> pd.DataFrame:
 
 
 def read_log(path: str | Path) -> Log:
-    """Read a run log written by :class:`Recorder` (or any JSON-encoded MCAP file).
+    """Read a run log written by :class:`Recorder` (or any JSON-encoded MCAP file); protobuf topics
+    (the 3D scene, for viewers) are named in ``scene_topics`` but not decoded.
 
     Uses the summary index when the file is complete; otherwise (interrupted
     run) streams records up to the first truncated/corrupt one and sets
@@ -570,9 +614,15 @@ def read_log(path: str | Path) -> Log:
         raise LogReadError(f"{p}: cannot open log ({e.strerror or e})") from None
 
     per_topic: dict[str, list[tuple[int, dict[str, Any]]]] = {}
+    scene_topics: dict[str, None] = {}
     for topic, encoding, log_time, data in raw:
+        if encoding == _BINARY_ENCODING:
+            scene_topics.setdefault(topic, None)
+            continue
         if encoding != _MESSAGE_ENCODING:
-            raise LogReadError(f"{p}: topic {topic} uses message encoding {encoding!r}, only json is supported")
+            raise LogReadError(
+                f"{p}: topic {topic} uses message encoding {encoding!r}: only json (and protobuf, skipped) is read"
+            )
         try:
             msg = json.loads(data)
         except (ValueError, UnicodeDecodeError) as e:
@@ -582,4 +632,4 @@ def read_log(path: str | Path) -> Log:
         per_topic.setdefault(topic, []).append((log_time, flatten(msg)))
 
     topics = {topic: _frame(rows) for topic, rows in per_topic.items()}
-    return Log(topics=topics, metadata=metadata, truncated=truncated)
+    return Log(topics=topics, metadata=metadata, truncated=truncated, scene_topics=tuple(sorted(scene_topics)))

@@ -25,12 +25,45 @@ from .metrics import stage_cost
 from .plants import Plant, command_for, make_plant, nominal_state
 from .reference import desired_path, reference
 from .robot import build_robot
+from .scene import SceneFrame, SceneTrack
 
 
 class Sink(Protocol):
     def write(self, topic: str, t: float, message: Mapping[str, Any]) -> None: ...
 
     def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None: ...
+
+
+class SceneSink(Sink, Protocol):
+    """A sink that also takes the 3D scene (the MCAP recorder, the live view)."""
+
+    def write_scene(self, frame: SceneFrame) -> None: ...
+
+
+class Tee:
+    """One sink that hands every message to several (the MCAP log and the live view)."""
+
+    def __init__(self, *sinks: SceneSink) -> None:
+        self.sinks = sinks
+
+    def write(self, topic: str, t: float, message: Mapping[str, Any]) -> None:
+        for s in self.sinks:
+            s.write(topic, t, message)
+
+    def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None:
+        for s in self.sinks:
+            s.write_pose(t, position, quaternion_wxyz)
+
+    def write_scene(self, frame: SceneFrame) -> None:
+        for s in self.sinks:
+            s.write_scene(frame)
+
+
+def scene_track(sink: Sink | None, legs: list[str], torso_size: Any) -> SceneTrack | None:
+    """A scene builder when ``sink`` draws scenes (has ``write_scene``); None for numbers-only sinks."""
+    if sink is None or not callable(getattr(sink, "write_scene", None)):
+        return None
+    return SceneTrack(legs, torso_size)
 
 
 @dataclass
@@ -118,6 +151,7 @@ def run_closed_loop(
     started = time.perf_counter()
     done = 0
     origin = x0[3:5].copy()  # the desired path starts where the robot does
+    scene = scene_track(sink, names, cfg.robot.torso.size)
     with interrupts_between_steps() as check_interrupt:
         for k in range(n_steps):
             check_interrupt()
@@ -152,6 +186,8 @@ def run_closed_loop(
                     quaternion,
                     names,
                     q_diag,
+                    scene,
+                    plant.legs,
                 )
                 for topic, message in plant.telemetry().items():
                     sink.write(topic, t, message)
@@ -186,11 +222,16 @@ def log_step(
     quaternion_wxyz: np.ndarray,
     legs: list[str],
     q_diag: np.ndarray,
+    scene: SceneTrack | None = None,
+    leg_nodes: Callable[[], np.ndarray] | None = None,
 ) -> None:
     """One MPC step's messages: the log schema shared by simulation and hardware runs.
 
     ``x_true`` is the best available state (the plant's in simulation, the state
-    estimate on hardware); the cost is evaluated on it.
+    estimate on hardware); the cost is evaluated on it. With a ``scene`` builder the
+    step's 3D scene goes to ``sink.write_scene`` too: ``leg_nodes()`` gives the legs
+    (4, N, 3), root to foot, and the applied forces (``/forces``) are drawn at each
+    leg's last node, the foot.
     """
     sol = step.solution
     sink.write_pose(t, position, quaternion_wxyz)
@@ -224,6 +265,9 @@ def log_step(
     sink.write("/markers", t, dict(markers))
     if step.telemetry:
         sink.write("/controller", t, step.telemetry)
+    if scene is not None and leg_nodes is not None:
+        nodes = leg_nodes()
+        sink.write_scene(scene.frame(t, position, quaternion_wxyz, x_ref_now[3:6], nodes, nodes[:, -1, :], step.forces))
 
 
 def _advance(

@@ -68,6 +68,7 @@ def test_wheel_install_runs_table1_outside_the_repo(installed: Path, tmp_path: P
     ).stdout.strip()
     assert Path(where).is_relative_to(installed), f"slotexp imported from {where}, not the installed wheel"
     assert (Path(where) / "conf" / "config.yaml").is_file()
+    assert (Path(where) / "layouts" / "slot.json").is_file()  # what `slot layout` writes
     out = tmp_path / "run"
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     proc = ok(

@@ -88,6 +88,7 @@ class HardwareSlotConfig(SlotConfig):
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     duration: float | None = num_field(None, lo=0.0, lo_open=True, unit="s")  # None: until Ctrl-C
     dry_run: bool = False
+    live: bool = True  # on the robot the live view is on unless live=false (slotexp/live.py)
     experiment: Any = field(default_factory=HardwareExperiment)
 
 

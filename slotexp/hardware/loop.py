@@ -15,6 +15,7 @@ measured attitude.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -26,7 +27,8 @@ from ..config import SlotConfig
 from ..controllers import Controller
 from ..reference import reference
 from ..robot import RobotModel
-from ..simulation import Sink, log_step
+from ..scene import straight_legs
+from ..simulation import Sink, log_step, scene_track
 from . import xl430 as X
 from .bus import BusError, ServoBus
 from .mapping import ServoMap
@@ -62,6 +64,13 @@ def nominal_feet(robot: RobotModel, position: np.ndarray, quaternion: np.ndarray
     return position + robot.feet_body @ quat_to_rot(np.asarray(quaternion, dtype=float)).T
 
 
+def nominal_legs(robot: RobotModel, position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
+    """Straight legs (4, 2, 3) from the torso corners to the nominal feet at the measured pose: the 3D view's
+    legs on the robot, whose leg shapes are not measured."""
+    rot = quat_to_rot(np.asarray(quaternion, dtype=float))
+    return straight_legs(position + robot.corners_body @ rot.T, nominal_feet(robot, position, quaternion))
+
+
 def run_loop(
     cfg: SlotConfig,
     robot: RobotModel,
@@ -92,6 +101,7 @@ def run_loop(
     n_max = None if duration is None else int(round(duration * rate_hz))
     names = list(robot.names)
     q_diag = np.asarray(cfg.mpc.q_diag, dtype=float)
+    scene = scene_track(sink, names, cfg.robot.torso.size)
     outcome = outcome if outcome is not None else LoopOutcome.empty(rate_hz)
     stats = outcome.stats
     sched = Deadlines(period, clock, sleep)
@@ -164,6 +174,8 @@ def run_loop(
             sample.quaternion,
             names,
             q_diag,
+            scene,
+            functools.partial(nominal_legs, robot, sample.position, sample.quaternion),
         )
         sink.write(
             "/servos",

@@ -11,17 +11,21 @@ summary, then the log is closed.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import datetime as _dt
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from .. import __version__
 from ..controllers import Controller, make_controller
+from ..errors import UserError
 from ..record import Recorder
 from ..robot import RobotModel, build_robot
+from ..simulation import Tee
 from .bus import BusError, DynamixelBus, ServoBus
 from .config import HardwareSlotConfig
 from .loop import LoopOutcome, SafetyStop, nominal_feet, run_loop
@@ -133,7 +137,7 @@ def run_hardware(
             warm_up(controller, robot, first)
             log_path.parent.mkdir(parents=True, exist_ok=True)
             meta = {"config": {"yaml": resolved_yaml}, "run": _run_metadata(cfg, commit)}
-            with Recorder(log_path, metadata=meta) as rec:
+            with Recorder(log_path, metadata=meta) as rec, _live_view(cfg, notify) as live:
                 started = time.perf_counter()
                 try:
                     if not cfg.dry_run and not stop.requested:
@@ -145,7 +149,7 @@ def run_hardware(
                         bus,
                         odometry,
                         smap,
-                        rec,
+                        rec if live is None else Tee(rec, live),
                         stop,
                         rate_hz=hw.rate_hz,
                         max_age_s=od.max_age_s,
@@ -185,6 +189,21 @@ def run_hardware(
             outcome,
         )
     return HardwareResult(EXIT_OK, "", log_path, outcome)
+
+
+def _live_view(cfg: HardwareSlotConfig, notify: Callable[[str], None]) -> contextlib.AbstractContextManager[Any]:
+    """The live view (on by default): a busy port costs the robot run nothing but the view, so it is a warning."""
+    if not cfg.live:
+        return contextlib.nullcontext(None)
+    from ..live import LiveView
+
+    try:
+        view = LiveView(cfg.live_port)
+    except UserError as exc:
+        notify(f"warning: {exc}; the run goes on without it (live=false silences this)")
+        return contextlib.nullcontext(None)
+    notify(f"live: open ws://{view.host}:{view.port} in Foxglove (Open connection)")
+    return view
 
 
 def _write_summary(

@@ -21,7 +21,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from .. import __version__
 from ..config import ScenarioConfig, SlotConfig
 from ..record import Recorder
-from ..simulation import STOP_SIGNALS, Interrupted, RunSummary, run_closed_loop
+from ..simulation import STOP_SIGNALS, Interrupted, RunSummary, Tee, run_closed_loop
 
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies
 
@@ -45,6 +45,17 @@ def git_commit() -> str:
         return "unknown"
 
 
+def open_live(cfg: SlotConfig) -> contextlib.AbstractContextManager[Any]:
+    """The live view ``cfg.live`` asks for (a started server, announced on stderr), or a no-op context."""
+    if not cfg.live:
+        return contextlib.nullcontext(None)
+    from ..live import LiveView
+
+    view = LiveView(cfg.live_port)
+    print(f"live: open ws://{view.host}:{view.port} in Foxglove (Open connection)", file=sys.stderr)
+    return view
+
+
 def run_logged(
     cfg: SlotConfig,
     scenario: ScenarioConfig,
@@ -53,8 +64,16 @@ def run_logged(
     resolved_yaml: str,
     commit: str,
     progress=None,
+    live: Any = None,
 ) -> RunSummary:
-    """One closed-loop run streamed to ``log_path``; the log is closed validly even on Ctrl-C."""
+    """One closed-loop run streamed to ``log_path``; the log is closed validly even on Ctrl-C.
+
+    ``live`` is a running :class:`slotexp.live.LiveView` to stream to as well; without one,
+    ``cfg.live`` starts one for this run.
+    """
+    if live is None and cfg.live:
+        with open_live(cfg) as view:
+            return run_logged(cfg, scenario, duration, log_path, resolved_yaml, commit, progress, view)
     log_path.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "config": {"yaml": resolved_yaml},
@@ -71,7 +90,8 @@ def run_logged(
         },
     }
     with Recorder(log_path, metadata=meta) as rec:
-        summary = run_closed_loop(cfg, scenario, duration, rec, progress)
+        sink = rec if live is None else Tee(rec, live)
+        summary = run_closed_loop(cfg, scenario, duration, sink, progress)
         rec.add_metadata(
             "summary",
             {
@@ -161,19 +181,21 @@ def run_many(
 ) -> list[RunSummary]:
     """Run every scenario (in parallel when ``n_jobs`` allows) to ``log_dir/<name>.mcap``."""
     commit = git_commit()
-    workers = n_workers(n_jobs, len(scenarios))
+    workers = 1 if cfg.live else n_workers(n_jobs, len(scenarios))  # one live server: the scenarios take turns
     steps = int(round(duration * cfg.mpc.rate_hz))
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
     with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
         tasks = [bar.add_task(f"{s.name:<10}", total=steps) for s in scenarios]
         if workers == 1:
             out = []
-            for i, s in enumerate(scenarios):
+            with open_live(cfg) as live:
+                for i, s in enumerate(scenarios):
 
-                def report(done: int, total: int, i: int = i) -> None:
-                    bar.update(tasks[i], completed=done)
+                    def report(done: int, total: int, i: int = i) -> None:
+                        bar.update(tasks[i], completed=done)
 
-                out.append(run_logged(cfg, s, duration, log_dir / f"{s.name}.mcap", resolved_yaml, commit, report))
+                    log = log_dir / f"{s.name}.mcap"
+                    out.append(run_logged(cfg, s, duration, log, resolved_yaml, commit, report, live))
             return out
         ctx = mp.get_context("spawn")  # numba/cvxpy state is not fork-safe
         q = ctx.Queue()  # progress, handed to each worker as it starts (no manager process to outlive us)

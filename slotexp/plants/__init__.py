@@ -70,6 +70,10 @@ class Plant(Protocol):
     def markers(self) -> dict[str, np.ndarray]:
         """Named world points to log and validate against (at least ``com``)."""
 
+    def legs(self) -> np.ndarray:
+        """Each leg's centreline (4, N, 3), world frame, root to foot, for the 3D view: every node of a
+        simulated leg, or a straight root-to-foot segment where the legs are not modelled."""
+
     def step(self, command: Command, period: float, external_force: np.ndarray | None = None) -> None:
         """Advance ``period`` seconds under ``command`` (of :attr:`command_type`), held constant."""
 

@@ -487,6 +487,9 @@ class CosseratPlant:
     def feet(self) -> np.ndarray:
         return self.leg_world()[:, -1, :]
 
+    def legs(self) -> np.ndarray:
+        return self.leg_world()
+
     def markers(self) -> dict[str, np.ndarray]:
         legs = self.leg_world()
         out = {"com": self.torso[0:3].copy()}

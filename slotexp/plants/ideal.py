@@ -11,6 +11,7 @@ import numpy as np
 from ..body import euler_to_quat, integrate_rk4, quat_to_euler, quat_to_rot
 from ..config import SlotConfig
 from ..robot import RobotModel
+from ..scene import straight_legs
 from . import PLANTS, ForceCommand
 
 
@@ -32,6 +33,7 @@ class IdealPlant:
         self._inertia = np.ascontiguousarray(robot.inertia_body)
         self._inertia_inv = np.linalg.inv(self._inertia)
         self._points = np.ascontiguousarray(robot.feet_body)
+        self._corners = np.asarray(robot.corners_body)
         q = euler_to_quat(*x0[0:3])
         rot = quat_to_rot(q)
         self._s = np.concatenate([x0[3:6], q, x0[9:12], rot.T @ x0[6:9]])
@@ -53,6 +55,11 @@ class IdealPlant:
         out = {"com": self._s[0:3].copy()}
         out.update({f"{name}_foot": feet[i] for i, name in enumerate(self.robot.names)})
         return out
+
+    def legs(self) -> np.ndarray:
+        """Straight segments from each torso corner to its force point: the ideal plant has no legs."""
+        rot = quat_to_rot(self._s[3:7])
+        return straight_legs(self._s[0:3] + self._corners @ rot.T, self._s[0:3] + self._points @ rot.T)
 
     def telemetry(self) -> dict[str, dict]:
         return {}

@@ -1,0 +1,1 @@
+"""The Foxglove layout shipped with slotexp (slot.json; built by slotexp.layout)."""

@@ -1,0 +1,127 @@
+"""Live view: the run's topics streamed to Foxglove over ``foxglove-sdk``'s WebSocket server.
+
+:class:`LiveView` is a sink like the MCAP recorder (``write``, ``write_pose``,
+``write_scene``) that publishes the same topics with the same schemas to a server on
+localhost (Foxglove: *Open connection* -> ``ws://localhost:<port>``). It never waits
+for a client: the SDK's ``log`` hands the message to the server's per-client queue
+and returns, and with no client subscribed to a channel nothing is encoded at all
+(``has_sinks()`` is checked first), so a run without a viewer costs a few
+microseconds per topic. :class:`slotexp.simulation.Tee` sends one step to both the log and the view.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Mapping
+from typing import Any
+
+import foxglove
+
+from .errors import ConfigError
+from .foxglove_scene import SCENE_TOPIC, TRANSFORMS_TOPIC, SceneEncoder
+from .record import (
+    _RESERVED_FIELD,
+    POSE_TOPIC,
+    TF_TOPIC,
+    _schema_for,
+    _schema_name,
+    _time_ns,
+    _to_json,
+    pose_messages,
+)
+from .scene import SceneFrame
+
+DEFAULT_PORT = 8765  # Foxglove's default for a WebSocket connection
+HOST = "127.0.0.1"  # localhost only: the view is for the machine running the loop
+
+
+class LiveView:
+    """A Foxglove WebSocket server and one channel per topic, created on the topic's first message."""
+
+    def __init__(self, port: int = DEFAULT_PORT, host: str = HOST, name: str = "slotexp") -> None:
+        logging.getLogger("foxglove").setLevel(logging.WARNING)  # the server's start/stop INFO lines: noise on stderr
+        self._context = foxglove.Context()
+        try:
+            self._server = foxglove.start_server(name=name, host=host, port=int(port), context=self._context)
+        except RuntimeError as exc:  # the SDK reports a busy port as FoxgloveError (a RuntimeError)
+            raise ConfigError(
+                f"live view: cannot listen on {host}:{port} ({str(exc).splitlines()[0]}): choose another live_port"
+            ) from None
+        self._channels: dict[str, foxglove.Channel] = {}
+        self._scene: SceneEncoder | None = None
+        self.host = host
+
+    @property
+    def port(self) -> int:
+        """The port the server listens on (the one asked for, or the free one picked for port 0)."""
+        return self._server.port
+
+    def _json_channel(self, topic: str, schema_name: str, schema: Mapping[str, Any]) -> foxglove.Channel:
+        chan = self._channels.get(topic)
+        if chan is None:
+            chan = foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(name=schema_name, encoding="jsonschema", data=json.dumps(schema).encode()),
+                message_encoding="json",
+                context=self._context,
+            )
+            self._channels[topic] = chan
+        return chan
+
+    def write(self, topic: str, t: float, message: Mapping[str, Any]) -> None:
+        """Publish a numeric topic as JSON, with the schema its first message implies (as in the log)."""
+        chan = self._channels.get(topic)
+        if chan is not None and not chan.has_sinks():
+            return
+        if _RESERVED_FIELD in message:
+            raise ValueError(f"message field {_RESERVED_FIELD!r} on {topic} is reserved for the log time column")
+        payload = _to_json(message, topic)
+        if chan is None:
+            chan = self._json_channel(topic, _schema_name(topic), _schema_for(payload))
+        if chan.has_sinks():
+            chan.log(json.dumps(payload, separators=(",", ":")).encode(), log_time=_time_ns(t))
+
+    def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None:
+        pose = [self._channels.get(topic) for topic in (POSE_TOPIC, TF_TOPIC)]
+        if all(c is not None and not c.has_sinks() for c in pose):
+            return  # advertised, nobody subscribed
+        for topic, schema_name, schema, payload in pose_messages(t, position, quaternion_wxyz):
+            chan = self._json_channel(topic, schema_name, schema)
+            if chan.has_sinks():
+                chan.log(json.dumps(payload, separators=(",", ":")).encode(), log_time=_time_ns(t))
+
+    def write_message(self, topic: str, t: float, message: Any) -> None:
+        """Publish a ``foxglove-sdk`` message, protobuf-encoded as in the log."""
+        chan = self._channels.get(topic)
+        if chan is None:
+            chan = foxglove.Channel(
+                topic, schema=message.get_schema(), message_encoding="protobuf", context=self._context
+            )
+            self._channels[topic] = chan
+        if chan.has_sinks():
+            chan.log(message.encode(), log_time=_time_ns(t))
+
+    def write_scene(self, frame: SceneFrame) -> None:
+        if self._scene is None:
+            self._scene = SceneEncoder()
+        scene = [self._channels.get(topic) for topic in (SCENE_TOPIC, TRANSFORMS_TOPIC)]
+        if all(c is not None and not c.has_sinks() for c in scene):
+            return  # advertised, nobody subscribed: skip building the messages
+        for topic, message in self._scene.messages(frame):
+            self.write_message(topic, frame.t, message)
+
+    def close(self) -> None:
+        """Stop the server (clients are disconnected) and close the channels."""
+        for chan in self._channels.values():
+            chan.close()
+        self._server.stop()
+
+    def __enter__(self) -> LiveView:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+__all__ = ["LiveView", "DEFAULT_PORT", "HOST"]

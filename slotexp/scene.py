@@ -1,0 +1,161 @@
+"""What the 3D view of a run shows at one MPC step, as plain geometry (numpy, no file or viewer code).
+
+A :class:`SceneFrame` holds the torso box, each leg's centreline (every node), each
+foot's ground-reaction force as an arrow, and the reference and actual paths so far.
+:class:`SceneTrack` builds one per step and keeps the two paths; the log and the live
+view (``slotexp/foxglove_scene.py``) turn the same frame into Foxglove messages, so
+what a log shows and what a live client sees cannot differ.
+
+Force arrows: tail at the foot, pointing along the applied force (world frame), length
+``FORCE_SCALE_M_PER_N`` metres per newton (1 cm/N: a foot carrying a quarter of the
+robot's weight, about 5.3 N, draws a 5.3 cm arrow, about half a leg). The last
+``ARROW_HEAD_FRACTION`` of the length is the head.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+FORCE_SCALE_M_PER_N = 0.01
+ARROW_HEAD_FRACTION = 0.25
+PATH_SPACING_M = 0.005  # a path keeps a point each time the robot has moved this far: bounded by distance, not time
+PATH_MAX_POINTS = 500  # beyond this a path keeps every other point: a step costs the same on any run length
+
+
+@dataclass(frozen=True)
+class Arrow:
+    """An arrow with its tail at ``tail`` (3,), ``length`` metres long, along the direction that
+    ``orientation_xyzw`` turns +x (an arrow's axis at identity) onto."""
+
+    tail: np.ndarray
+    orientation_xyzw: np.ndarray
+    length: float
+
+
+@dataclass(frozen=True)
+class SceneFrame:
+    """One step of the 3D scene, world frame, metres."""
+
+    t: float
+    position: np.ndarray  # torso centre (3,)
+    quaternion_wxyz: np.ndarray  # torso attitude (4,)
+    torso_size: np.ndarray  # box edges (3,)
+    leg_names: tuple[str, ...]
+    legs: np.ndarray  # (4, N, 3) centreline nodes, root to foot
+    forces: np.ndarray  # (4, 3) applied ground-reaction forces, N
+    arrows: tuple[Arrow, ...]  # one per leg, scaled forces at the feet
+    reference_path: np.ndarray  # (M, 3)
+    actual_path: np.ndarray  # (K, 3)
+
+
+def rotation_from_x(direction: Sequence[float]) -> np.ndarray:
+    """Shortest rotation (x, y, z, w) from the +x axis to ``direction``; identity for a zero or non-finite
+    vector, half a turn about z for -x. Plain floats: for four arrows a step, numpy's per-call cost dominates."""
+    dx, dy, dz = (float(v) for v in direction)
+    n = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if not (n > 0.0 and math.isfinite(n)):
+        return np.array([0.0, 0.0, 0.0, 1.0])
+    dx, dy, dz = dx / n, dy / n, dz / n
+    if dx < -1.0 + 1e-12:
+        return np.array([0.0, 0.0, 1.0, 0.0])
+    w = 1.0 + dx  # (x cross d, 1 + x . d), normalised
+    m = math.sqrt(dz * dz + dy * dy + w * w)
+    return np.array([0.0, -dz / m, dy / m, w / m])
+
+
+def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCALE_M_PER_N) -> tuple[Arrow, ...]:
+    """One arrow per foot: tail at the foot, along the force, ``scale`` metres per newton (zero length for
+    a zero or non-finite force)."""
+    out = []
+    for tail, f in zip(np.asarray(feet, dtype=float), np.asarray(forces, dtype=float).tolist()):
+        magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
+        out.append(Arrow(tail, rotation_from_x(f), magnitude * scale if math.isfinite(magnitude) else 0.0))
+    return tuple(out)
+
+
+def straight_legs(corners: np.ndarray, feet: np.ndarray) -> np.ndarray:
+    """Legs drawn as straight segments (4, 2, 3) from root to foot, where no leg shape is known
+    (the ideal plant and the hardware's nominal feet)."""
+    return np.stack([np.asarray(corners, dtype=float), np.asarray(feet, dtype=float)], axis=1)
+
+
+class _Path:
+    """Points along a trajectory, one each time it has moved ``spacing`` metres from the last.
+
+    The path ends at most ``spacing`` behind the robot (5 mm against a 125 mm torso) and
+    changes only when it gains a point: :meth:`add` then returns a new array, and otherwise
+    the same one, so a consumer can tell an unchanged path by identity and reuse what it
+    built from it (the scene's most expensive part on a fast loop).
+    """
+
+    def __init__(self, spacing: float, max_points: int) -> None:
+        self._spacing = spacing
+        self._max = max_points
+        self._kept: list[list[float]] = []
+        self._points = np.empty((0, 3))
+
+    def add(self, point: Sequence[float]) -> np.ndarray:
+        """Keep ``point`` if it is ``spacing`` from the last kept one; the kept points (k, 3)."""
+        p = [float(v) for v in point]
+        if all(math.isfinite(v) for v in p) and (not self._kept or math.dist(p, self._kept[-1]) >= self._spacing):
+            self._kept.append(p)
+            if len(self._kept) > self._max:  # every other point, the newest always kept
+                self._kept = self._kept[-1::-2][::-1]
+            self._points = np.array(self._kept)
+        return self._points
+
+
+class SceneTrack:
+    """Builds each step's :class:`SceneFrame` and remembers the reference and actual paths."""
+
+    def __init__(
+        self,
+        leg_names: Sequence[str],
+        torso_size: Sequence[float],
+        spacing: float = PATH_SPACING_M,
+        max_points: int = PATH_MAX_POINTS,
+    ) -> None:
+        self.leg_names = tuple(leg_names)
+        self.torso_size = np.asarray(torso_size, dtype=float)
+        self._reference = _Path(spacing, max_points)
+        self._actual = _Path(spacing, max_points)
+
+    def frame(
+        self,
+        t: float,
+        position: np.ndarray,
+        quaternion_wxyz: np.ndarray,
+        reference_position: np.ndarray,
+        legs: np.ndarray,
+        feet: np.ndarray,
+        forces: np.ndarray,
+    ) -> SceneFrame:
+        """The scene at ``t``: ``legs`` (4, N, 3) root to foot, ``forces`` (4, 3) applied at ``feet`` (4, 3)."""
+        return SceneFrame(
+            t=float(t),
+            position=np.asarray(position, dtype=float),
+            quaternion_wxyz=np.asarray(quaternion_wxyz, dtype=float),
+            torso_size=self.torso_size,
+            leg_names=self.leg_names,
+            legs=np.asarray(legs, dtype=float),
+            forces=np.asarray(forces, dtype=float),
+            arrows=force_arrows(feet, forces),
+            reference_path=self._reference.add(reference_position),
+            actual_path=self._actual.add(position),
+        )
+
+
+__all__ = [
+    "Arrow",
+    "SceneFrame",
+    "SceneTrack",
+    "FORCE_SCALE_M_PER_N",
+    "ARROW_HEAD_FRACTION",
+    "force_arrows",
+    "rotation_from_x",
+    "straight_legs",
+]

@@ -1,0 +1,214 @@
+"""The 3D scene: in the log (decoded with the schema foxglove-sdk wrote into it) and live over the SDK's
+WebSocket server (a real client on 127.0.0.1).
+
+The SDK's server (0.30) speaks the subprotocol ``foxglove.sdk.v1``, the successor of
+``foxglove.websocket.v1`` with the same messages (it refuses a client offering only the old
+name, HTTP 400); the client offers both, as the Foxglove app does, and the server picks."""
+
+from __future__ import annotations
+
+import base64
+import json
+import struct
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from mcap.reader import make_reader
+from websockets.sync.client import connect
+
+from slotexp.errors import ConfigError
+from slotexp.foxglove_scene import SCENE_TOPIC, TRANSFORMS_TOPIC
+from slotexp.live import LiveView
+from slotexp.record import Recorder, read_log
+from slotexp.scene import FORCE_SCALE_M_PER_N, SceneTrack, rotation_from_x
+from slotexp.simulation import Tee, run_closed_loop
+from tests.helpers import load
+
+LEGS = ("FL", "RL", "RR", "FR")
+
+
+def message_class(schema_name: str, descriptor_set: bytes):
+    """The protobuf class for ``schema_name`` built from the descriptor set the SDK ships (nothing hand-made)."""
+    files = descriptor_pb2.FileDescriptorSet.FromString(descriptor_set).file
+    pool = descriptor_pool.DescriptorPool()
+    pending = list(files)
+    while pending:  # add each file after the ones it imports
+        progress = [f for f in pending if all(d in {g.name for g in files if g not in pending} for d in f.dependency)]
+        assert progress, "the descriptor set has an import cycle or a missing file"
+        for f in progress:
+            pool.Add(f)
+            pending.remove(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
+
+
+def rotate(q_xyzw: np.ndarray, v: np.ndarray) -> np.ndarray:
+    x, y, z, w = q_xyzw
+    u = np.array([x, y, z])
+    return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
+
+
+@pytest.fixture(scope="module")
+def soft_log(tmp_path_factory) -> Path:
+    """0.2 s (6 MPC steps) of the walk on the soft plant, logged as a run logs it."""
+    cfg = load("experiment=simulate", "plant=cosserat")
+    path = tmp_path_factory.mktemp("scene") / "walk.mcap"
+    with Recorder(path) as rec:
+        run_closed_loop(cfg, cfg.scenarios["baseline"], 0.2, rec)
+    return path
+
+
+def test_every_step_has_a_scene_that_decodes_with_the_sdk_schema(soft_log: Path) -> None:
+    cfg = load("experiment=simulate", "plant=cosserat")
+    n_nodes = cfg.robot.leg.n_nodes
+    log = read_log(soft_log)  # the numeric topics still read; the scene is named, not tabulated
+    assert set(log.scene_topics) == {SCENE_TOPIC, TRANSFORMS_TOPIC}
+    forces = log["/forces"]
+    markers = log["/markers"]
+    with open(soft_log, "rb") as f:
+        reader = make_reader(f)
+        schemas = {c.topic: reader.get_summary().schemas[c.schema_id] for c in reader.get_summary().channels.values()}
+        assert schemas[SCENE_TOPIC].name == "foxglove.SceneUpdate" and schemas[SCENE_TOPIC].encoding == "protobuf"
+        assert schemas[TRANSFORMS_TOPIC].name == "foxglove.FrameTransforms"
+        scene_cls = message_class("foxglove.SceneUpdate", schemas[SCENE_TOPIC].data)
+        tf_cls = message_class("foxglove.FrameTransforms", schemas[TRANSFORMS_TOPIC].data)
+        scenes = [(m.log_time, scene_cls.FromString(m.data)) for _, _, m in reader.iter_messages([SCENE_TOPIC])]
+        f.seek(0)
+        tfs = [tf_cls.FromString(m.data) for _, _, m in make_reader(f).iter_messages([TRANSFORMS_TOPIC])]
+    assert len(scenes) == len(forces) == len(tfs) == 6
+    for k, (log_time, scene) in enumerate(scenes):
+        assert log_time == round(forces["t"].iloc[k] * 1e9)
+        entities = {e.id: e for e in scene.entities}
+        legs = [entities[f"leg/{name}"] for name in LEGS]
+        assert all(len(e.lines) == 1 and len(e.lines[0].points) == n_nodes for e in legs)
+        for i, name in enumerate(LEGS):
+            foot = legs[i].lines[0].points[-1]
+            assert [foot.x, foot.y, foot.z] == pytest.approx(
+                [markers[f"{name}_foot.{a}"].iloc[k] for a in range(3)], abs=1e-12
+            )
+            arrow = entities[f"force/{name}"].arrows[0]
+            q = arrow.pose.orientation
+            length = arrow.shaft_length + arrow.head_length
+            drawn = rotate(np.array([q.x, q.y, q.z, q.w]), np.array([1.0, 0.0, 0.0])) * length / FORCE_SCALE_M_PER_N
+            logged = np.array([forces[f"applied.{i}.{a}"].iloc[k] for a in range(3)])
+            assert drawn == pytest.approx(logged, abs=1e-9)
+            tail = arrow.pose.position
+            assert [tail.x, tail.y, tail.z] == pytest.approx([foot.x, foot.y, foot.z])
+        torso = entities["torso"].cubes[0]
+        assert [torso.size.x, torso.size.y, torso.size.z] == pytest.approx(cfg.robot.torso.size)
+        assert len(entities["path/actual"].lines[0].points) >= 1
+        assert len(entities["path/reference"].lines[0].points) >= 1
+        (tf,) = tfs[k].transforms
+        assert (tf.parent_frame_id, tf.child_frame_id) == ("world", "torso")
+        assert tf.translation.x == pytest.approx(torso.pose.position.x)
+
+
+def test_paths_keep_a_point_per_spacing_and_arrows_point_along_the_force() -> None:
+    track = SceneTrack(LEGS, [0.1, 0.08, 0.03], spacing=0.0095, max_points=8)
+    zero = np.zeros((4, 3))
+    legs = np.zeros((4, 2, 3))
+    paths = []
+    for k in range(40):  # 1 mm steps: a kept point every 10 steps
+        frame = track.frame(k / 30, [k * 1e-3, 0, 0.04], [1, 0, 0, 0], [k * 1e-3, 0, 0.04], legs, zero, zero)
+        paths.append(frame.actual_path)
+    assert frame.actual_path[:, 0] == pytest.approx([0.0, 0.01, 0.02, 0.03])
+    assert paths[31] is paths[39] and paths[30] is not paths[29]  # unchanged between kept points: the same array
+    for k in range(40, 200):
+        frame = track.frame(k / 30, [k * 1e-3, 0, 0.04], [1, 0, 0, 0], [0, 0, 0], legs, zero, zero)
+    assert len(frame.actual_path) <= 8 and frame.actual_path[-1, 0] == pytest.approx(0.19)
+    assert frame.actual_path[0, 0] < 0.05 and np.all(np.diff(frame.actual_path[:, 0]) > 0)
+    rng = np.random.default_rng(1)
+    for d in [*rng.normal(size=(20, 3)), np.array([-1.0, 0, 0]), np.array([1.0, 0, 0])]:
+        assert rotate(rotation_from_x(d), np.array([1.0, 0, 0])) == pytest.approx(d / np.linalg.norm(d))
+
+
+def _frames(stop: threading.Event, view: LiveView, rec: Recorder | None = None) -> None:
+    """The closed loop's scene, published until ``stop`` (as a run would, one step after another)."""
+    track = SceneTrack(LEGS, [0.1, 0.08, 0.03])
+    legs = np.linspace([0, 0, 0], [0.1, 0, -0.04], 31)[None].repeat(4, axis=0)
+    k = 0
+    while not stop.is_set() and k < 3000:
+        view.write("/cost", k / 30, {"stage": 0.5})
+        view.write_pose(k / 30, [0, 0, 0.04], [1, 0, 0, 0])
+        view.write_scene(
+            track.frame(k / 30, [0, 0, 0.04], [1, 0, 0, 0], [0, 0, 0.04], legs, legs[:, -1], np.ones((4, 3)))
+        )
+        k += 1
+        stop.wait(0.005)
+
+
+def test_live_server_advertises_and_streams_the_scene_to_a_client() -> None:
+    with LiveView(port=0) as view:
+        stop = threading.Event()
+        # no client yet: publishing must not block (the first steps create and advertise the channels)
+        track = SceneTrack(LEGS, [0.1, 0.08, 0.03])
+        legs = np.zeros((4, 31, 3))
+        view.write("/cost", 0.0, {"stage": 0.5})
+        view.write_scene(track.frame(0.0, [0, 0, 0.04], [1, 0, 0, 0], [0, 0, 0], legs, legs[:, -1], np.ones((4, 3))))
+        publisher = threading.Thread(target=_frames, args=(stop, view), daemon=True)
+        publisher.start()
+        try:
+            with connect(
+                f"ws://127.0.0.1:{view.port}",
+                subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
+                open_timeout=10,
+            ) as ws:
+                assert ws.subprotocol == "foxglove.sdk.v1"
+                channels: dict[str, dict] = {}
+                while SCENE_TOPIC not in channels or "/cost" not in channels:
+                    msg = ws.recv(timeout=10)
+                    if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
+                        channels.update({c["topic"]: c for c in json.loads(msg)["channels"]})
+                scene = channels[SCENE_TOPIC]
+                assert (scene["encoding"], scene["schemaName"]) == ("protobuf", "foxglove.SceneUpdate")
+                assert {TRANSFORMS_TOPIC, "/torso/pose", "/tf"} <= set(channels)
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": scene["id"]}]}))
+                while True:
+                    msg = ws.recv(timeout=10)
+                    if isinstance(msg, bytes) and msg[0] == 0x01:
+                        break
+                sub_id, _stamp = struct.unpack_from("<IQ", msg, 1)
+                assert sub_id == 7
+                cls = message_class("foxglove.SceneUpdate", base64.b64decode(scene["schema"]))
+                update = cls.FromString(msg[13:])
+                legs_seen = [e for e in update.entities if e.id.startswith("leg/")]
+                assert len(legs_seen) == 4 and all(len(e.lines[0].points) == 31 for e in legs_seen)
+        finally:
+            stop.set()
+            publisher.join(timeout=10)
+
+
+def test_a_busy_live_port_is_a_one_line_config_error() -> None:
+    with LiveView(port=0) as first:
+        with pytest.raises(ConfigError, match=f"cannot listen on 127.0.0.1:{first.port}.*live_port"):
+            LiveView(port=first.port)
+
+
+def test_tee_writes_the_same_steps_to_the_log_and_the_view(tmp_path: Path) -> None:
+    cfg = load("experiment=simulate")
+    with Recorder(tmp_path / "a.mcap") as rec, LiveView(port=0) as view:
+        run_closed_loop(cfg, cfg.scenarios["baseline"], 0.2, Tee(rec, view))
+    log = read_log(tmp_path / "a.mcap")
+    assert len(log["/state"]) == 6 and set(log.scene_topics) == {SCENE_TOPIC, TRANSFORMS_TOPIC}
+
+
+def test_shipped_layout_is_the_built_one_and_plots_only_what_a_run_logs(soft_log: Path, tmp_path: Path) -> None:
+    from slotexp.layout import SHIPPED, layout_json, plotted_paths
+    from tests.helpers import ok, slot
+
+    assert SHIPPED.read_text() == layout_json()  # regenerate with slotexp.layout after changing it
+    log = read_log(soft_log)
+    for path in plotted_paths():
+        topic, _, field = path.partition(".")
+        column = field.replace("[", ".").replace("]", "")
+        assert topic in log and column in log[topic].columns, path
+    out = tmp_path / "sub" / "layout.json"
+    proc = ok(slot("layout", out, cwd=tmp_path))
+    assert proc.stdout.strip().splitlines()[-1] == str(out)
+    layout = json.loads(out.read_text())
+    panels = json.dumps(layout)
+    assert '"panelType": "ThreeDee"' in panels and '"/scene"' in panels
+    bad = slot("layout", tmp_path, cwd=tmp_path)
+    assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "Traceback" not in bad.stderr
