@@ -182,7 +182,7 @@ def set_stance(model: mujoco.MjModel, data: mujoco.MjData, legs: Legs, cfg: Rigi
     quat = euler_to_quat(*x0[0:3])
     # The CoM depends on the joints: place the base, solve the legs, shift the base, repeat.
     base = np.array(x0[3:6], dtype=float)
-    for _ in range(4):
+    for _ in range(10):
         data.qpos[0:3] = base
         data.qpos[3:7] = quat
         feet = np.array([base[0], base[1], 0.0]) + offsets @ rz.T
