@@ -66,6 +66,7 @@ class RigidController(MpcController):
         self.swing_t0 = np.zeros(4)
         self.swing_duration = np.full(4, self.period)
         self.targets = np.zeros((4, 3))
+        self.origin: np.ndarray | None = None  # where the desired path starts: the first measured position
 
     def plan_footholds(self, x: np.ndarray, t_remaining: np.ndarray) -> np.ndarray:
         """World footholds (4, 3) on the ground for every leg, from the measured state ``x``."""
@@ -101,7 +102,11 @@ class RigidController(MpcController):
         planned = self.plan_footholds(x, t_remaining)
         self.targets[~stance] = planned[~stance]
         plan = contact_plan(contacts[:horizon], cfg.gait, cfg.mpc.f_min_stance, cfg.mpc.f_max)
-        x_ref = reference(x, t, cfg.gait, self.period, horizon)
+        if self.origin is None:
+            self.origin = x[3:5].copy()
+        # positions on the desired path (not from wherever the robot is): Q's position weights then hold the
+        # robot to its path, so speed errors and pushes do not accumulate into drift
+        x_ref = reference(x, t, cfg.gait, self.period, horizon, path_origin=self.origin)
         arms = np.where(stance[:, None], feet, self.targets)
         forces, solution, violations = self.solve(x, x_ref, arms, plan)
         self.gait.roll()
