@@ -257,3 +257,10 @@ def test_every_backend_solves_the_rigid_qp_to_the_same_objective(backend: str) -
         worst = plan_violations(sol.inputs, plan, robot.mass * G, cfg.mpc.force_balance_band)
         assert max(worst.values()) <= VIOLATION_TOL[backend], (backend, worst)
         assert np.all(sol.inputs.reshape(-1, 4, 3)[~plan.stance] == pytest.approx(0.0, abs=VIOLATION_TOL[backend]))
+
+
+def test_perturb_cycle_average_uses_the_gait_matrix_period() -> None:
+    from slotexp.jobs.perturb import gait_period_steps
+
+    assert gait_period_steps(_cfg()) == 16  # seed 001's trot: 1 + 7 + 1 + 7 steps of 0.02 s
+    assert gait_period_steps(_cfg("gait=walk4")) == 40
