@@ -81,8 +81,17 @@ class RigidPlant:
         return out
 
     def telemetry(self) -> dict[str, dict]:
-        q = self.data.qpos[self.legs.qpos]
-        return {"/rigid": {"joint_torque": self.torque.copy(), "joint_angle": q, "base": self.data.qpos[0:3].copy()}}
+        """Joint torques and angles, and each leg as hip, thigh, knee and foot points (the GIF draws them)."""
+        d, legs = self.data, self.legs
+        shape = {}
+        for i, name in enumerate(self.robot.names):
+            calf = self.model.body_parentid[legs.foot_body[i]]  # the calf body starts at the knee
+            thigh = self.model.body_parentid[calf]
+            shape[name] = d.xpos[[legs.hip_body[i], thigh, calf, legs.foot_body[i]]].copy()
+        return {
+            "/rigid": {"joint_torque": self.torque.copy(), "joint_angle": d.qpos[legs.qpos]},
+            "/legs/shape": shape,
+        }
 
     # ------------------------------------------------------------------ actuation
     def leg_torques(self, command: LegCommand, t: float) -> np.ndarray:
