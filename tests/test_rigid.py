@@ -157,9 +157,11 @@ def test_set_stance_puts_the_feet_on_the_ground_and_the_com_where_asked() -> Non
     np.testing.assert_allclose(plant.feet()[:, 2], 0.0, atol=1e-6)
 
 
-def test_rigid_plant_needs_a_rigid_robot() -> None:
+def test_rigid_plant_needs_a_rigid_robot_and_an_existing_model() -> None:
     with pytest.raises(ConfigError, match="plant=rigid needs a rigid robot"):
         load("plant=rigid", "experiment=simulate", "robot=slot")
+    with pytest.raises(ConfigError, match="robot.rigid.model = 'nope.xml': no such file"):
+        load("plant=rigid", "experiment=simulate", "robot.rigid.model=nope.xml")
 
 
 # ----------------------------------------------------------------------------- closed loop

@@ -19,6 +19,8 @@ base's attitude and angular velocity.
 
 from __future__ import annotations
 
+import time as _time
+
 import mujoco
 import numpy as np
 
@@ -48,7 +50,6 @@ class RigidPlant:
         set_stance(self.model, self.data, self.legs, cfg.robot.rigid, np.asarray(x0, dtype=float))
         self.dt = self.model.opt.timestep
         self.time = 0.0
-        self._steps = 0  # MuJoCo steps taken (time without round-off)
         self.torque = np.zeros((4, 3))
         self.mujoco_time_s = 0.0  # wall time spent in mj_step1/mj_step2, for `slot bench rigid`
         self._subtree_vel()
@@ -119,10 +120,9 @@ class RigidPlant:
         return tau
 
     def step(self, command: LegCommand, period: float, external_force: np.ndarray | None = None) -> None:
-        import time as _time
-
         m, d = self.model, self.data
         n = max(1, int(round(period / self.dt)))
+        m.opt.timestep = period / n  # a period cut at a push is not a whole number of sim.dt
         d.xfrc_applied[:] = 0.0
         if external_force is not None:
             d.xfrc_applied[self.legs.base, 0:3] = external_force
@@ -137,6 +137,7 @@ class RigidPlant:
             mujoco.mj_step2(m, d)
             self.mujoco_time_s += (t1 - t0) + (_time.perf_counter() - t2)
         d.xfrc_applied[:] = 0.0
+        m.opt.timestep = self.dt
         self.time += period
         self._subtree_vel()
 

@@ -14,9 +14,7 @@ foot's own is larger.
 
 from __future__ import annotations
 
-import importlib.util
 from dataclasses import dataclass
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -25,21 +23,9 @@ from ..body import euler_to_quat
 from ..config import RigidConfig, RobotConfig
 from ..errors import ConfigError
 from ..robot import RobotModel
+from . import model_path
 
 JOINTS = ("hip", "thigh", "calf")
-
-
-def model_path(cfg: RigidConfig) -> Path:
-    """The MJCF file inside the installed package, found without importing the package."""
-    spec = importlib.util.find_spec(cfg.package)
-    if spec is None or not spec.submodule_search_locations:
-        raise ConfigError(
-            f"robot.rigid.package = {cfg.package!r} is not installed: pip install it (pyproject.toml lists it)"
-        )
-    path = Path(list(spec.submodule_search_locations)[0]) / "robot_model" / cfg.model
-    if not path.is_file():
-        raise ConfigError(f"robot.rigid.model = {cfg.model!r}: no such model in {path.parent.parent}")
-    return path
 
 
 def load_model(cfg: RigidConfig, dt: float, gravity: float) -> mujoco.MjModel:
