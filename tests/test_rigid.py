@@ -266,3 +266,21 @@ def test_perturb_cycle_average_uses_the_gait_matrix_period() -> None:
 
     assert gait_period_steps(_cfg()) == 16  # seed 001's trot: 1 + 7 + 1 + 7 steps of 0.02 s
     assert gait_period_steps(_cfg("gait=walk4")) == 40
+
+
+def test_simulate_reports_the_mean_yaw_rate_across_wraps() -> None:
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from slotexp.jobs.simulate import metrics
+
+    t = np.arange(0.0, 10.0, 0.02)
+    x = np.zeros((t.size, 12))
+    x[:, 2] = (0.5 * t + np.pi) % (2 * np.pi) - np.pi  # 0.5 rad/s, wrapped into [-pi, pi) as a state is
+    run = SimpleNamespace(
+        t=t, x=x, x_ref=x.copy(), run={}, infeasible_steps=0, stats=pd.DataFrame({"wall_time_s": [1e-3]})
+    )
+    m = metrics(run, [0.0, 0.0], 0.8, 2.0, yaw_rate=0.5)
+    assert m["yaw_rate_radps"] == pytest.approx(0.5)
+    assert m["yaw_rate_error_fraction"] == pytest.approx(0.0, abs=1e-12)
