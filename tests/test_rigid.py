@@ -240,14 +240,7 @@ def _solve(*overrides: str) -> list:
     return [mpc.solve(*p) for p in _trot_problems()]
 
 
-# OSQP through CVXPY (states and forces as unscaled variables, forces up to 150 N) stops at its 50 000
-# iterations on some of these QPs; osqp_direct, which scales its variables, solves them. Known gap, kept visible.
-OSQP_CVXPY_GAP = pytest.mark.xfail(strict=True, reason="OSQP via CVXPY does not converge on the rigid QP")
-
-
-@pytest.mark.parametrize(
-    "backend", [pytest.param(b, marks=OSQP_CVXPY_GAP) if b == "osqp" else b for b in BACKENDS.names()]
-)
+@pytest.mark.parametrize("backend", BACKENDS.names())
 def test_every_backend_solves_the_rigid_qp_to_the_same_objective(backend: str) -> None:
     cfg = _cfg()
     robot = build_robot(cfg.robot)
