@@ -216,6 +216,13 @@ RUNS = {
     "rigid_simulate_go1_walk4": ["experiment=simulate", "plant=rigid", "robot=go1", "gait=walk4"],
     # Table I on the rigid robot; the trot's state swings within each 0.32 s cycle, so the cost is the cycle mean's
     "rigid_perturb": ["experiment=perturb", "plant=rigid", "experiment.cost_average=gait_cycle"],
+    # ... trotting in place, where the cost is the perturbation's alone (no start from rest to 0.5 m/s)
+    "rigid_perturb_in_place": [
+        "experiment=perturb",
+        "plant=rigid",
+        "gait.velocity=[0,0]",
+        "experiment.cost_average=gait_cycle",
+    ],
 }
 
 # Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
