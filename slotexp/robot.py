@@ -38,7 +38,14 @@ def rest_shape_points(coeffs: list[float], length: float, n: int = 400) -> np.nd
 
 
 def build_robot(cfg: RobotConfig) -> RobotModel:
-    """Torso cuboid plus four legs lumped as point masses at their rest-shape centroids."""
+    """Torso cuboid plus four legs lumped as point masses at their rest-shape centroids.
+
+    A rigid quadruped (``robot.rigid.model`` set) is read from its MuJoCo model instead.
+    """
+    if cfg.rigid.model:
+        from .rigid.model import robot_model  # MuJoCo is imported only for rigid robots
+
+        return robot_model(cfg)
     lx, ly, lz = cfg.torso.size
     yaw = np.deg2rad(np.asarray(cfg.leg.yaw_deg, dtype=float))
     # Each leg sits on the torso's bottom face at the corner its yaw points out of.

@@ -280,7 +280,10 @@ def _advance(
     rng: np.random.Generator,
 ) -> None:
     """One MPC period, split exactly at any impulse that falls inside it."""
-    command = command_for(plant.command_type, step.forces, step.tendon_deg)
+    if isinstance(step.command, plant.command_type):
+        command = step.command
+    else:
+        command = command_for(plant.command_type, step.forces, step.tendon_deg)
     sigma = scenario.noise.process_force_sigma
     f_ext = rng.normal(0.0, sigma, 3) if sigma > 0 else None
     now = t

@@ -51,10 +51,13 @@ class CvxpyMpc(MpcBackend):
         self.fz_min = cp.Parameter((4, h), nonneg=True, name="fz_min")
         self.fz_max = cp.Parameter((4, h), nonneg=True, name="fz_max")
         self.x = cp.Variable((N_STATE, h + 1), name="x")
-        self.u = cp.Variable((N_INPUT, h), name="u")
+        # The forces are solved for in units of m g / 4 (a stance leg's share of the weight), so they are
+        # of order one like the states: unscaled, a 12 kg robot's forces of 50-150 N kept OSQP from converging.
+        self.force_unit = self.weight / 4.0
+        self.u = cp.Variable((N_INPUT, h), name="u_scaled")
 
         fx, fy, fz = self.u[0::3, :], self.u[1::3, :], self.u[2::3, :]
-        weight = self.weight
+        weight = self.weight / self.force_unit
         constraints = [self.x[:, 0] == self.x0]
         constraints += [self.x[:, k + 1] == self.a @ self.x[:, k] + self.b[k] @ self.u[:, k] + self.g for k in range(h)]
         constraints += [
@@ -64,12 +67,12 @@ class CvxpyMpc(MpcBackend):
             -fx <= cp.multiply(self.mu, fz),
             fy <= cp.multiply(self.mu, fz),
             -fy <= cp.multiply(self.mu, fz),
-            cp.sum(fz, axis=0) <= weight + cfg.force_balance_band,
-            cp.sum(fz, axis=0) >= weight - cfg.force_balance_band,
+            cp.sum(fz, axis=0) <= weight + cfg.force_balance_band / self.force_unit,
+            cp.sum(fz, axis=0) >= weight - cfg.force_balance_band / self.force_unit,
         ]
         sqrt_q = np.sqrt(self.q)[:, None]
         tracking = cp.sum_squares(cp.multiply(sqrt_q, self.x[:, 1:] - self.x_ref))
-        effort = cfg.r_weight * cp.sum_squares(self.u)
+        effort = cfg.r_weight * self.force_unit**2 * cp.sum_squares(self.u)
         self.problem = cp.Problem(cp.Minimize(cfg.objective_scale * (tracking + effort)), constraints)
         if not self.problem.is_dpp():  # pragma: no cover - guards future edits
             raise RuntimeError("MPC problem is not DPP-compliant; it would recompile every step")
@@ -87,7 +90,7 @@ class CvxpyMpc(MpcBackend):
         self.a.value = model.a
         self.g.value = model.g
         for b in self.b:
-            b.value = model.b
+            b.value = model.b * self.force_unit
         return model
 
     def solve(self, x: np.ndarray, x_ref: np.ndarray, lever_arms: np.ndarray, plan: ContactPlan) -> MpcSolution:
@@ -97,8 +100,8 @@ class CvxpyMpc(MpcBackend):
         self.x0.value = x
         self.x_ref.value = x_ref.T
         self.mu.value = plan.mu.T
-        self.fz_min.value = plan.fz_min.T
-        self.fz_max.value = plan.fz_max.T
+        self.fz_min.value = plan.fz_min.T / self.force_unit
+        self.fz_max.value = plan.fz_max.T / self.force_unit
         status, iterations, solve_time = "solver_error", 0, float("nan")
         try:
             with warnings.catch_warnings():  # the status is recorded; no console noise per step
@@ -117,7 +120,7 @@ class CvxpyMpc(MpcBackend):
             pass
         if status in SUCCESS and self.u.value is not None:
             return solution_from_inputs(
-                self.u.value.T,
+                self.u.value.T * self.force_unit,
                 np.ascontiguousarray(x, dtype=float),
                 np.ascontiguousarray(x_ref, dtype=float),
                 model,

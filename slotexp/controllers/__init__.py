@@ -39,6 +39,9 @@ class ControlStep:
     fallback: bool
     violations: dict[str, float]  # per constraint group, of the applied input
     telemetry: dict = field(default_factory=dict)  # the controller's own state, logged as /controller
+    # the plant command, when the controller builds one itself (the rigid controller's LegCommand);
+    # None: the simulation builds it from forces and tendon_deg (slotexp.plants.command_for)
+    command: object | None = None
 
 
 class Controller(Protocol):

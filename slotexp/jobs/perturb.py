@@ -31,7 +31,7 @@ class PerturbExperiment:
     settle_fraction: float = num_field(0.01, lo=0.0, lo_open=True, hi=1.0, unit="")
     settle_hold_s: float = num_field(1.0, lo=0.0, unit="s")
     # step: the stage cost of every MPC step (the paper's); gait_cycle: the cost of the error averaged
-    # over the last gait cycle (walking soft legs, whose state swings within each cycle)
+    # over the last gait cycle (walking soft legs or a trotting rigid robot, whose state swings within each cycle)
     cost_average: str = choice_field("step", "step", "gait_cycle")
 
     def check(self, cfg: SlotConfig) -> None:
@@ -45,12 +45,15 @@ class PerturbExperiment:
 
 
 def gait_period_steps(cfg: SlotConfig) -> int:
-    """MPC steps in one cycle of the gait the controller walks (its library style's clock)."""
+    """MPC steps in one cycle of the gait the controller walks (its library style's clock; the rigid
+    controller's gait matrix period)."""
+    if cfg.controller.name == "rigid":
+        return sum(int(row[0]) for row in cfg.gait.phases)
     library = cfg.controller.library
     if cfg.controller.name not in ("gait_mpc", "open_loop") or cfg.gait.style not in library:
         raise ConfigError(
             "experiment.cost_average=gait_cycle needs a gait controller (controller=gait_mpc or "
-            "open_loop, plant=cosserat): the other controllers have no gait cycle"
+            "open_loop, plant=cosserat; or controller=rigid): the other controllers have no gait cycle"
         )
     return max(1, round(cfg.mpc.rate_hz / library[cfg.gait.style].frequency_hz))
 

@@ -46,7 +46,9 @@ def lateral_drift(xy: np.ndarray, direction: np.ndarray, distance: float) -> tup
     return float(np.max(np.abs(rel[mask] @ n))), float(min(covered[-1], distance))
 
 
-def metrics(run: RunData, velocity: list[float], drift_distance: float, measure_from_s: float = 2.0) -> dict:
+def metrics(
+    run: RunData, velocity: list[float], drift_distance: float, measure_from_s: float = 2.0, yaw_rate: float = 0.0
+) -> dict:
     """Tracking metrics (results/README.md, "Definitions"). Speed, heading and the speed error are
     the mean over t >= ``measure_from_s`` (net displacement over time); the commanded direction is
     the reference's at the start (the world frame, the robot starting at zero yaw)."""
@@ -65,12 +67,16 @@ def metrics(run: RunData, velocity: list[float], drift_distance: float, measure_
     heading_error = float(np.degrees(np.arctan2(mean_v[1], mean_v[0]) - np.arctan2(d[1], d[0])))
     heading_error = (heading_error + 180.0) % 360.0 - 180.0
     yaw_drift = float(np.degrees(run.x[-1, 2] - run.x_ref[-1, 2]))
+    yaw = np.unwrap(run.x[:, 2])
+    mean_yaw_rate = float((yaw[-1] - yaw[start]) / span)  # turning in place is measured by this
     return {
         "speed_mps": float(np.linalg.norm(mean_v)),
         "speed_along_mps": along,
         "speed_error_fraction": (along - commanded) / commanded if commanded > 0 else float("nan"),
         "heading_error_deg": heading_error if commanded > 0 else float("nan"),
         "yaw_drift_deg": yaw_drift,
+        "yaw_rate_radps": mean_yaw_rate,
+        "yaw_rate_error_fraction": (mean_yaw_rate - yaw_rate) / yaw_rate if abs(yaw_rate) > 0 else float("nan"),
         "lateral_drift_per_m": drift / covered if covered > 0 else float("nan"),
         "measured_from_s": float(run.t[start]),
         "gait": run.run.get("gait"),
@@ -114,18 +120,28 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
     """Metrics, Figs. 4 and 6 (and the walk animation of a soft-leg run) from the log alone."""
     exp = cfg.experiment
     return write_report(
-        out_dir, list(cfg.gait.velocity), exp.drift_distance, list(cfg.robot.leg.names), exp.measure_from_s
+        out_dir,
+        list(cfg.gait.velocity),
+        exp.drift_distance,
+        list(cfg.robot.leg.names),
+        exp.measure_from_s,
+        yaw_rate=cfg.gait.yaw_rate,
     )
 
 
 def write_report(
-    out_dir: Path, velocity: list[float], drift_distance: float, legs: list[str], measure_from_s: float = 2.0
+    out_dir: Path,
+    velocity: list[float],
+    drift_distance: float,
+    legs: list[str],
+    measure_from_s: float = 2.0,
+    yaw_rate: float = 0.0,
 ) -> dict:
     """:func:`report` with its settings given (hardware runs share it)."""
     from ..figures.simulate import plot_com, plot_path
 
     run = load_run(find_logs(out_dir)[0])
-    result = metrics(run, velocity, drift_distance, measure_from_s)
+    result = metrics(run, velocity, drift_distance, measure_from_s, yaw_rate)
     write_text(out_dir / "metrics.json", json.dumps(result, indent=2))
     plot_com(run, out_dir / "fig4_com.png")
     plot_path(run, legs, out_dir / "fig6_path.png")

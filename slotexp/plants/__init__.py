@@ -40,13 +40,51 @@ class TendonCommand:
     tendon_deg: np.ndarray
 
 
-Command = ForceCommand | TendonCommand
+@dataclass(frozen=True)
+class LegCommand:
+    """What a legged rigid robot's joint-level loop runs with over the period (``plant=rigid``).
+
+    Stance legs push with ``forces`` (4, 3), the MPC's ground-reaction forces
+    (world frame); swing legs follow seed 002's parabola from ``swing_start`` to
+    ``swing_target`` (world, foot contact points), lifted off at ``swing_t0`` for
+    ``swing_duration`` s, with a Cartesian PD (``kp``, ``kd``). Both become joint
+    torques through the foot Jacobian at every physics step, as a robot's
+    motor loop runs faster than its MPC.
+    """
+
+    forces: np.ndarray
+    stance: np.ndarray  # (4,) bool
+    swing_start: np.ndarray  # (4, 3)
+    swing_target: np.ndarray  # (4, 3)
+    swing_t0: np.ndarray  # (4,) s
+    swing_duration: np.ndarray  # (4,) s
+    swing_height: float
+    kp: np.ndarray  # (3,) N/m
+    kd: np.ndarray  # (3,) N s/m
+
+    @classmethod
+    def standing(cls, forces: np.ndarray) -> LegCommand:
+        """Every leg in stance, pushing with ``forces``."""
+        zeros = np.zeros((4, 3))
+        return cls(
+            np.asarray(forces, dtype=float), np.ones(4, bool), zeros, zeros, np.zeros(4), np.ones(4), 0.0,
+            np.zeros(3), np.zeros(3),
+        )  # fmt: skip
+
+
+Command = ForceCommand | TendonCommand | LegCommand
 
 
 def command_for(command_type: type[Command], forces: np.ndarray, tendon_deg: np.ndarray) -> Command:
-    """The command a plant of ``command_type`` takes, from the controller's two outputs."""
+    """The command a plant of ``command_type`` takes, from the controller's two outputs.
+
+    A :class:`LegCommand` built here has every leg in stance; the rigid controller
+    builds its own (:attr:`ControlStep.command`) with the swing legs in it.
+    """
     if command_type is ForceCommand:
         return ForceCommand(np.asarray(forces, dtype=float))
+    if command_type is LegCommand:
+        return LegCommand.standing(forces)
     return TendonCommand(np.asarray(tendon_deg, dtype=float))
 
 
@@ -105,6 +143,7 @@ __all__ = [
     "Command",
     "ForceCommand",
     "TendonCommand",
+    "LegCommand",
     "command_for",
     "make_plant",
     "nominal_state",

