@@ -7,9 +7,11 @@ server write messages every Foxglove panel reads, with no hand-made schema.
 Topics:
 - ``/scene`` (``foxglove.SceneUpdate``): entities ``torso`` (a cube), ``leg/<name>``
   (a line strip through every node, root to foot), ``force/<name>`` (an arrow, see
-  :mod:`slotexp.scene` for the scale), ``path/reference`` and ``path/actual``
-  (line strips). Each message replaces every entity, so any one message draws the
-  whole scene (a seek in Foxglove needs only the last one).
+  :mod:`slotexp.scene` for the scale), ``feet`` (a sphere per foot), ``footholds``
+  (a flat disc per planned foothold, when the controller plans them: the rigid
+  quadruped), ``path/reference`` and ``path/actual`` (line strips). Each message
+  replaces every entity, so any one message draws the whole scene (a seek in
+  Foxglove needs only the last one).
 - ``/transforms`` (``foxglove.FrameTransforms``): world -> torso.
 """
 
@@ -28,6 +30,7 @@ from foxglove.messages import (
     Quaternion,
     SceneEntity,
     SceneUpdate,
+    SpherePrimitive,
     Timestamp,
     Vector3,
 )
@@ -41,6 +44,8 @@ TORSO_FRAME = "torso"
 LINE_THICKNESS_M = 0.003
 ARROW_SHAFT_DIAMETER_M = 0.004
 ARROW_HEAD_DIAMETER_M = 0.01
+FOOT_DIAMETER_M = 0.012
+FOOTHOLD_SIZE_M = (0.03, 0.03, 0.002)  # a flat disc on the ground
 
 _TORSO_COLOR = Color(r=0.6, g=0.6, b=0.65, a=0.8)
 _LEG_COLORS = (  # FL, RL, RR, FR: the colours of the figures' legs
@@ -52,6 +57,19 @@ _LEG_COLORS = (  # FL, RL, RR, FR: the colours of the figures' legs
 _FORCE_COLOR = Color(r=0.9, g=0.1, b=0.1, a=1.0)
 _REFERENCE_COLOR = Color(r=0.2, g=0.8, b=0.2, a=0.9)
 _ACTUAL_COLOR = Color(r=0.1, g=0.3, b=0.9, a=0.9)
+_FOOT_COLOR = Color(r=0.1, g=0.1, b=0.1, a=1.0)
+_FOOTHOLD_COLOR = Color(r=1.0, g=0.8, b=0.0, a=0.9)
+_UPRIGHT = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
+
+def _spheres(points: np.ndarray, size: tuple[float, float, float], color: Color) -> list[SpherePrimitive]:
+    return [
+        SpherePrimitive(
+            pose=Pose(position=_v(p), orientation=_UPRIGHT), size=Vector3(x=size[0], y=size[1], z=size[2]), color=color
+        )
+        for p in points
+    ]
+
 
 _NS_PER_S = 1_000_000_000
 
@@ -144,6 +162,10 @@ def scene_update(frame: SceneFrame, paths: _PathEntities | None = None) -> Scene
                 ],
             )
         )
+    foot = (FOOT_DIAMETER_M,) * 3
+    entities.append(entity("feet", spheres=_spheres(frame.feet, foot, _FOOT_COLOR)))
+    if frame.footholds is not None:
+        entities.append(entity("footholds", spheres=_spheres(frame.footholds, FOOTHOLD_SIZE_M, _FOOTHOLD_COLOR)))
     entities.append(paths("reference", frame.reference_path, stamp, _REFERENCE_COLOR))
     entities.append(paths("actual", frame.actual_path, stamp, _ACTUAL_COLOR))
     return SceneUpdate(entities=entities)

@@ -1,7 +1,8 @@
 """What the 3D view of a run shows at one MPC step, as plain geometry (numpy, no file or viewer code).
 
-A :class:`SceneFrame` holds the torso box, each leg's centreline (every node), each
-foot's ground-reaction force as an arrow, and the reference and actual paths so far.
+A :class:`SceneFrame` holds the torso box, each leg's centreline (every node), the
+feet, each foot's ground-reaction force as an arrow, the footholds a controller plans
+(the rigid quadruped's footstep planner), and the reference and actual paths so far.
 :class:`SceneTrack` builds one per step and keeps the two paths; the log and the live
 view (``slotexp/foxglove_scene.py``) turn the same frame into Foxglove messages, so
 what a log shows and what a live client sees cannot differ.
@@ -50,6 +51,8 @@ class SceneFrame:
     arrows: tuple[Arrow, ...]  # one per leg, scaled forces at the feet
     reference_path: np.ndarray  # (M, 3)
     actual_path: np.ndarray  # (K, 3)
+    feet: np.ndarray  # (4, 3) where the forces act
+    footholds: np.ndarray | None = None  # (4, 3) where the controller plans to put each foot; None: it plans none
 
 
 def rotation_from_x(direction: Sequence[float]) -> np.ndarray:
@@ -133,8 +136,10 @@ class SceneTrack:
         legs: np.ndarray,
         feet: np.ndarray,
         forces: np.ndarray,
+        footholds: np.ndarray | None = None,
     ) -> SceneFrame:
-        """The scene at ``t``: ``legs`` (4, N, 3) root to foot, ``forces`` (4, 3) applied at ``feet`` (4, 3)."""
+        """The scene at ``t``: ``legs`` (4, N, 3) root to foot, ``forces`` (4, 3) applied at ``feet`` (4, 3),
+        and the controller's planned ``footholds`` (4, 3), if it plans any."""
         return SceneFrame(
             t=float(t),
             position=np.asarray(position, dtype=float),
@@ -146,6 +151,8 @@ class SceneTrack:
             arrows=force_arrows(feet, forces),
             reference_path=self._reference.add(reference_position),
             actual_path=self._actual.add(position),
+            feet=np.asarray(feet, dtype=float),
+            footholds=None if footholds is None else np.asarray(footholds, dtype=float),
         )
 
 

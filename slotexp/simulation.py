@@ -267,7 +267,11 @@ def log_step(
         sink.write("/controller", t, step.telemetry)
     if scene is not None and leg_nodes is not None:
         nodes = leg_nodes()
-        sink.write_scene(scene.frame(t, position, quaternion_wxyz, x_ref_now[3:6], nodes, nodes[:, -1, :], step.forces))
+        footholds = (step.telemetry or {}).get("foothold")  # a controller that plans footholds reports them
+        frame = scene.frame(
+            t, position, quaternion_wxyz, x_ref_now[3:6], nodes, nodes[:, -1, :], step.forces, footholds
+        )
+        sink.write_scene(frame)
 
 
 def _advance(

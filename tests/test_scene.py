@@ -96,6 +96,10 @@ def test_every_step_has_a_scene_that_decodes_with_the_sdk_schema(soft_log: Path)
             assert drawn == pytest.approx(logged, abs=1e-9)
             tail = arrow.pose.position
             assert [tail.x, tail.y, tail.z] == pytest.approx([foot.x, foot.y, foot.z])
+        feet = [[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in entities["feet"].spheres]
+        ends = [[p.x, p.y, p.z] for p in (e.lines[0].points[-1] for e in legs)]
+        np.testing.assert_allclose(feet, ends, atol=1e-12)
+        assert "footholds" not in entities  # the gait controller plans none
         torso = entities["torso"].cubes[0]
         assert [torso.size.x, torso.size.y, torso.size.z] == pytest.approx(cfg.robot.torso.size)
         assert len(entities["path/actual"].lines[0].points) >= 1
@@ -103,6 +107,29 @@ def test_every_step_has_a_scene_that_decodes_with_the_sdk_schema(soft_log: Path)
         (tf,) = tfs[k].transforms
         assert (tf.parent_frame_id, tf.child_frame_id) == ("world", "torso")
         assert tf.translation.x == pytest.approx(torso.pose.position.x)
+
+
+def test_the_rigid_quadrupeds_scene_shows_its_feet_and_the_planned_footholds(tmp_path: Path) -> None:
+    cfg = load("experiment=simulate", "plant=rigid")
+    path = tmp_path / "trot.mcap"
+    with Recorder(path) as rec:
+        run_closed_loop(cfg, cfg.scenarios["baseline"], 0.2, rec)
+    planned = read_log(path)["/controller"]
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        schema = next(s for s in reader.get_summary().schemas.values() if s.name == "foxglove.SceneUpdate")
+        scene_cls = message_class("foxglove.SceneUpdate", schema.data)
+        scenes = [scene_cls.FromString(m.data) for _, _, m in reader.iter_messages([SCENE_TOPIC])]
+    assert len(scenes) == len(planned) == 10  # 0.2 s at the rigid plant's 50 Hz
+    for k, scene in enumerate(scenes):
+        entities = {e.id: e for e in scene.entities}
+        drawn = [[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in entities["footholds"].spheres]
+        logged = [[planned[f"foothold.{i}.{a}"].iloc[k] for a in range(3)] for i in range(4)]
+        np.testing.assert_allclose(drawn, logged, atol=1e-12)
+        feet = [[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in entities["feet"].spheres]
+        ends = [entities[f"leg/{name}"].lines[0].points[-1] for name in cfg.robot.leg.names]
+        assert all(len(entities[f"leg/{name}"].lines[0].points) == 4 for name in cfg.robot.leg.names)  # hip to foot
+        np.testing.assert_allclose(feet, [[p.x, p.y, p.z] for p in ends], atol=1e-12)
 
 
 def test_paths_keep_a_point_per_spacing_and_arrows_point_along_the_force() -> None:

@@ -50,8 +50,8 @@ class RigidPlant:
         self.robot = robot
         self.model = load_model(cfg.robot.rigid, cfg.sim.dt, cfg.sim.gravity)
         self.data = mujoco.MjData(self.model)
-        self.legs = leg_indices(self.model, cfg.robot.leg.names, cfg.robot.rigid.base_body)
-        set_stance(self.model, self.data, self.legs, cfg.robot.rigid, np.asarray(x0, dtype=float))
+        self.index = leg_indices(self.model, cfg.robot.leg.names, cfg.robot.rigid.base_body)
+        set_stance(self.model, self.data, self.index, cfg.robot.rigid, np.asarray(x0, dtype=float))
         self.dt = self.model.opt.timestep
         self.time = 0.0
         self.torque = np.zeros((4, 3))
@@ -66,14 +66,14 @@ class RigidPlant:
     def state(self) -> np.ndarray:
         d = self.data
         quat = d.qpos[3:7]
-        rot = d.xmat[self.legs.base].reshape(3, 3)
+        rot = d.xmat[self.index.base].reshape(3, 3)
         return np.concatenate(
-            [quat_to_euler(quat), d.subtree_com[self.legs.base], rot @ d.qvel[3:6], d.subtree_linvel[self.legs.base]]
+            [quat_to_euler(quat), d.subtree_com[self.index.base], rot @ d.qvel[3:6], d.subtree_linvel[self.index.base]]
         )
 
     def feet(self) -> np.ndarray:
-        out = self.data.xpos[self.legs.foot_body].copy()
-        out[:, 2] -= self.legs.foot_radius
+        out = self.data.xpos[self.index.foot_body].copy()
+        out[:, 2] -= self.index.foot_radius
         return out
 
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
@@ -81,35 +81,41 @@ class RigidPlant:
 
     def markers(self) -> dict[str, np.ndarray]:
         feet = self.feet()
-        out = {"com": self.data.subtree_com[self.legs.base].copy()}
+        out = {"com": self.data.subtree_com[self.index.base].copy()}
         out.update({f"{name}_foot": feet[i] for i, name in enumerate(self.robot.names)})
         return out
 
-    def telemetry(self) -> dict[str, dict]:
-        """Joint torques and angles, and each leg as hip, thigh, knee and foot points (the GIF draws them)."""
-        d, legs = self.data, self.legs
-        shape = {}
-        for i, name in enumerate(self.robot.names):
-            calf = self.model.body_parentid[legs.foot_body[i]]  # the calf body starts at the knee
+    def legs(self) -> np.ndarray:
+        """Each leg (4, 4, 3) as its hip, thigh, knee and foot body origins, world frame (the GIF and the 3D
+        view draw them)."""
+        index = self.index
+        out = np.empty((4, 4, 3))
+        for i in range(4):
+            calf = self.model.body_parentid[index.foot_body[i]]  # the calf body starts at the knee
             thigh = self.model.body_parentid[calf]
-            shape[name] = d.xpos[[legs.hip_body[i], thigh, calf, legs.foot_body[i]]].copy()
+            out[i] = self.data.xpos[[index.hip_body[i], thigh, calf, index.foot_body[i]]]
+        return out
+
+    def telemetry(self) -> dict[str, dict]:
+        """Joint torques and angles, and each leg's points (:meth:`legs`)."""
+        legs = self.legs()
         return {
-            "/rigid": {"joint_torque": self.torque.copy(), "joint_angle": d.qpos[legs.qpos]},
-            "/legs/shape": shape,
+            "/rigid": {"joint_torque": self.torque.copy(), "joint_angle": self.data.qpos[self.index.qpos]},
+            "/legs/shape": {name: legs[i] for i, name in enumerate(self.robot.names)},
         }
 
     # ------------------------------------------------------------------ actuation
     def leg_torques(self, command: LegCommand, t: float) -> np.ndarray:
         """Joint torques (4, 3) at time ``t`` for the kinematics in ``data`` (mj_step1 done)."""
         d = self.data
-        jac = foot_jacobians(self.model, d, self.legs)
-        tau = d.qfrc_bias[self.legs.dof].copy()  # the legs' own gravity and velocity terms (feedforward)
+        jac = foot_jacobians(self.model, d, self.index)
+        tau = d.qfrc_bias[self.index.dof].copy()  # the legs' own gravity and velocity terms (feedforward)
         for i in range(4):
-            j_leg = jac[i][:, self.legs.dof[i]]
+            j_leg = jac[i][:, self.index.dof[i]]
             if command.stance[i]:
                 tau[i] -= j_leg.T @ command.forces[i]
                 continue
-            radius = np.array([0.0, 0.0, self.legs.foot_radius[i]])
+            radius = np.array([0.0, 0.0, self.index.foot_radius[i]])
             p_d, v_d = swing_point(
                 command.swing_start[i] + radius,
                 command.swing_target[i] + radius,
@@ -117,7 +123,7 @@ class RigidPlant:
                 t - command.swing_t0[i],
                 command.swing_duration[i],
             )
-            p = d.xpos[self.legs.foot_body[i]]
+            p = d.xpos[self.index.foot_body[i]]
             v = jac[i] @ d.qvel
             force = command.kp * (p_d - p) + command.kd * (v_d - v)
             tau[i] += j_leg.T @ force
@@ -129,14 +135,14 @@ class RigidPlant:
         m.opt.timestep = period / n  # a period cut at a push is not a whole number of sim.dt
         d.xfrc_applied[:] = 0.0
         if external_force is not None:
-            d.xfrc_applied[self.legs.base, 0:3] = external_force
+            d.xfrc_applied[self.index.base, 0:3] = external_force
         start = self.time
         for k in range(n):
             t0 = _time.perf_counter()
             mujoco.mj_step1(m, d)
             t1 = _time.perf_counter()
             self.torque = self.leg_torques(command, start + k * period / n)
-            d.ctrl[self.legs.actuator] = self.torque / self.legs.gear
+            d.ctrl[self.index.actuator] = self.torque / self.index.gear
             t2 = _time.perf_counter()
             mujoco.mj_step2(m, d)
             self.mujoco_time_s += (t1 - t0) + (_time.perf_counter() - t2)
@@ -150,8 +156,8 @@ class RigidPlant:
         m, d = self.model, self.data
         jacp = np.zeros((3, m.nv))
         jacr = np.zeros((3, m.nv))
-        mujoco.mj_jacSubtreeCom(m, d, jacp, self.legs.base)
-        mujoco.mj_jacBody(m, d, None, jacr, self.legs.base)
+        mujoco.mj_jacSubtreeCom(m, d, jacp, self.index.base)
+        mujoco.mj_jacBody(m, d, None, jacr, self.index.base)
         impulse = jacp.T @ np.asarray(linear, dtype=float) + jacr.T @ np.asarray(angular, dtype=float)
         dq = np.zeros(m.nv)
         mujoco.mj_solveM(m, d, dq.reshape(1, -1), impulse.reshape(1, -1))
