@@ -257,11 +257,16 @@ def precheck(
             except (HydraException, OmegaConfBaseException) as exc:
                 fail(_compose_message(exc))
             try:
-                (loader or load_config)(cfg)
+                loaded = (loader or load_config)(cfg)
             except UserError as exc:
                 fail(str(exc))
             except (OmegaConfBaseException, ValueError, TypeError) as exc:
                 fail(_compose_message(exc))
+            if multirun and getattr(loaded, "live", False) and getattr(loaded, "live_port", 0) != 0:
+                fail(
+                    f"live=true on a sweep: its jobs run at once and only one can listen on port {loaded.live_port}: "
+                    "add live_port=0 (each job picks a free port and prints it), or drop live=true"
+                )
         hydra_overrides = [p.input_line for p in every if p.key_or_group.startswith("hydra")]
         if hydra_overrides:  # Hydra's own settings (launcher, run dir): composed with the first combination
             from hydra.conf import HydraConf

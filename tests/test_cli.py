@@ -175,6 +175,7 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     (["hydra/launcher=jobllib"], ["jobllib", "joblib"]),
     (["hydra.sweep.dir=out[1,2]"], ["hydra.sweep.dir=out[1,2]", "quote", "hydra.sweep.dir='out[1,2]'"]),
     (["-m", "hydra.launcher.n_jobs=1,2"], ["hydra.launcher.n_jobs=1,2", "one value"]),
+    (["-m", "gait=walk,crawl", "live=true"], ["live=true", "live_port=0"]),  # the jobs would share one port
     ([""], ["empty"]),
     (["experiment.scenario=bäseline"], ["must be quoted", "experiment.scenario='bäseline'"]),
     (["sim.dt=1e-9"], ["sim.dt", ">= 1e-06"]),
