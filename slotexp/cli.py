@@ -211,6 +211,8 @@ def precheck(
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
+    parser = OverridesParser.create()
+    every = []
     for o in overrides:
         if not o.strip():
             fail("an argument is empty (an empty '' on the command line?): remove it, or write key=value")
@@ -220,13 +222,9 @@ def precheck(
         if not value.isascii() and not (value.startswith(("'", '"')) and value.endswith(value[0])):
             quoted = f"{key}='{value}'"
             fail(f'{o}: a value with non-ASCII characters must be quoted for Hydra: write "{quoted}"')
-    parser = OverridesParser.create()
-    every = []
-    for o in overrides:  # one at a time, so that the message can name the one that does not parse
-        try:
+        try:  # one at a time, so that the message can name the one that does not parse
             every.append(parser.parse_override(o))
         except HydraException as exc:
-            key, _, value = o.partition("=")
             fail(f"cannot parse override {o!r} ({str(exc).splitlines()[0]}): quote the value, e.g. \"{key}='{value}'\"")
     for p in every:
         if p.key_or_group.startswith("hydra") and p.is_sweep_override():
@@ -262,23 +260,25 @@ def precheck(
                 fail(str(exc))
             except (OmegaConfBaseException, ValueError, TypeError) as exc:
                 fail(_compose_message(exc))
-            if multirun and getattr(loaded, "live", False) and getattr(loaded, "live_port", 0) != 0:
+            if multirun and loaded.live and loaded.live_port != 0:
                 fail(
                     f"live=true on a sweep: its jobs run at once and only one can listen on port {loaded.live_port}: "
                     "add live_port=0 (each job picks a free port and prints it), or drop live=true"
                 )
-        hydra_overrides = [p.input_line for p in every if p.key_or_group.startswith("hydra")]
-        if hydra_overrides:  # Hydra's own settings (launcher, run dir): composed with the first combination
+        hydra_settings = [p for p in every if p.key_or_group.startswith("hydra")]
+        if hydra_settings:  # Hydra's own settings (launcher, run dir): composed with the first combination
             from hydra.conf import HydraConf
 
-            for o in hydra_overrides:
-                key = o.lstrip("+~").split("=")[0]
+            for p in hydra_settings:
+                key = p.key_or_group
                 problem = unknown_key(key[len("hydra.") :], HydraConf, None) if key.startswith("hydra.") else None
                 if problem:
                     fail(problem.replace("unknown key ", "unknown key hydra.").replace("mean ", "mean hydra."))
             first = next(iter(itertools.product(*choices)), ())
             try:
-                compose(config_name, overrides=[*first, *hydra_overrides], return_hydra_config=True)
+                compose(
+                    config_name, overrides=[*first, *(p.input_line for p in hydra_settings)], return_hydra_config=True
+                )
             except (HydraException, OmegaConfBaseException) as exc:
                 fail(_compose_message(exc))
 
@@ -330,8 +330,7 @@ def _hydra_task(cfg) -> None:
     except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except KeyboardInterrupt as exc:
-        signum = _stop_signal(exc)
-        word = "terminated" if signum == signal.SIGTERM else "interrupted"
+        signum, word = _stopped_by(exc)
         typer.echo(f"{word}: the logs written so far are valid and readable in {out_dir}", err=True)
         typer.echo(str(out_dir))
         from .sweepstop import is_sweep_worker
@@ -376,8 +375,7 @@ def run(ctx: typer.Context) -> None:
     try:
         main_fn()
     except KeyboardInterrupt as exc:  # a sweep's parent (a single run reports from inside its job)
-        signum = _stop_signal(exc)
-        word = "terminated" if signum == signal.SIGTERM else "interrupted"
+        signum, word = _stopped_by(exc)
         typer.echo(f"{word}: each running job closed its log; jobs not started were not run", err=True)
         raise SystemExit(128 + signum) from None
 
@@ -600,9 +598,11 @@ def _terminate(signum, frame) -> None:
     raise Interrupted(signum)
 
 
-def _stop_signal(exc: BaseException) -> int:
-    """The signal behind a KeyboardInterrupt: its own, or the last one this process took, or SIGINT."""
-    return getattr(exc, "signum", None) or (_received[-1] if _received else signal.SIGINT)
+def _stopped_by(exc: BaseException) -> tuple[int, str]:
+    """The signal behind a KeyboardInterrupt (its own, or the last one this process took, or SIGINT) and
+    the word a message uses for it."""
+    signum = getattr(exc, "signum", None) or (_received[-1] if _received else signal.SIGINT)
+    return signum, "terminated" if signum == signal.SIGTERM else "interrupted"
 
 
 def main() -> None:
@@ -611,8 +611,8 @@ def main() -> None:
     try:
         app()
     except KeyboardInterrupt as exc:
-        signum = _stop_signal(exc)
-        typer.echo("terminated" if signum == signal.SIGTERM else "interrupted", err=True)
+        signum, word = _stopped_by(exc)
+        typer.echo(word, err=True)
         raise SystemExit(128 + signum) from None
 
 
