@@ -22,8 +22,8 @@ PARENT_ENV = "SLOT_SWEEP_PARENT"  # the sweep's parent PID, inherited by its job
 GRACE_S = 20.0  # longest wait for the jobs to close their logs; then the launcher kills what is left
 
 
-def _children(pid: int) -> list[int]:
-    """Direct child processes of ``pid`` (Linux ``/proc``; elsewhere none are found)."""
+def child_processes(pid: int) -> list[int]:
+    """Direct child processes of ``pid``, zombies left out (Linux ``/proc``; elsewhere none are found)."""
     out = []
     for stat in Path("/proc").glob("[0-9]*/stat"):
         with contextlib.suppress(OSError, ValueError, IndexError):
@@ -48,7 +48,7 @@ def _takes(pid: int, signum: int) -> bool:
 
 def stop_jobs(signum: int, frame=None) -> None:
     """Signal handler of a sweep's parent: pass ``signum`` on, wait for the jobs to close, then unwind."""
-    jobs = [pid for pid in _children(os.getpid()) if _takes(pid, signum)]
+    jobs = [pid for pid in child_processes(os.getpid()) if _takes(pid, signum)]
     for pid in jobs:
         with contextlib.suppress(OSError):
             os.kill(pid, signum)

@@ -23,6 +23,7 @@ import yaml
 from mcap.reader import make_reader
 
 from slotexp.record import read_log
+from slotexp.sweepstop import child_processes
 from tests.helpers import SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot
 
 TABLE1_HEADER = ["scenario", "max_cost", "mean_cost", "final_cost", "settle_s", "infeasible_steps"]
@@ -490,19 +491,6 @@ def test_an_output_directory_that_cannot_be_written_is_refused_before_any_work(t
         assert_one_line_error(bench, "--out")
 
 
-def _children(pid: int) -> list[int]:
-    """Processes whose parent is ``pid`` (from /proc)."""
-    out = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            out.append(int(stat.parent.name))
-    return out
-
-
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -558,7 +546,7 @@ def _stop_parent_once_logging(proc: subprocess.Popen, logs: list[Path], signum: 
                 break
             time.sleep(0.1)
         assert proc.poll() is None, proc.stderr.read()
-        workers = _children(proc.pid)
+        workers = child_processes(proc.pid)
         os.kill(proc.pid, signum)
         stdout, stderr = proc.communicate(timeout=60)
     finally:
