@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .body import quat_to_rot
+
 FORCE_SCALE_M_PER_N = 0.01
 ARROW_HEAD_FRACTION = 0.25
 PATH_SPACING_M = 0.005  # a path keeps a point each time the robot has moved this far: bounded by distance, not time
@@ -80,10 +82,14 @@ def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCAL
     return tuple(out)
 
 
-def straight_legs(corners: np.ndarray, feet: np.ndarray) -> np.ndarray:
-    """Legs drawn as straight segments (4, 2, 3) from root to foot, where no leg shape is known
-    (the ideal plant and the hardware's nominal feet)."""
-    return np.stack([np.asarray(corners, dtype=float), np.asarray(feet, dtype=float)], axis=1)
+def straight_legs(
+    corners_body: np.ndarray, feet_body: np.ndarray, position: np.ndarray, quaternion_wxyz: np.ndarray
+) -> np.ndarray:
+    """Legs drawn as straight segments (4, 2, 3) from each torso corner to its foot (both body frame)
+    at the torso's pose, where no leg shape is known (the ideal plant, and the robot's nominal feet)."""
+    rot = quat_to_rot(np.asarray(quaternion_wxyz, dtype=float))
+    p = np.asarray(position, dtype=float)
+    return np.stack([p + np.asarray(corners_body) @ rot.T, p + np.asarray(feet_body) @ rot.T], axis=1)
 
 
 class _Path:
@@ -134,24 +140,25 @@ class SceneTrack:
         quaternion_wxyz: np.ndarray,
         reference_position: np.ndarray,
         legs: np.ndarray,
-        feet: np.ndarray,
         forces: np.ndarray,
         footholds: np.ndarray | None = None,
     ) -> SceneFrame:
-        """The scene at ``t``: ``legs`` (4, N, 3) root to foot, ``forces`` (4, 3) applied at ``feet`` (4, 3),
-        and the controller's planned ``footholds`` (4, 3), if it plans any."""
+        """The scene at ``t``: ``legs`` (4, N, 3) root to foot, ``forces`` (4, 3) applied at each leg's last
+        point (the foot), and the controller's planned ``footholds`` (4, 3), if it plans any."""
+        legs = np.asarray(legs, dtype=float)
+        feet = legs[:, -1, :]
         return SceneFrame(
             t=float(t),
             position=np.asarray(position, dtype=float),
             quaternion_wxyz=np.asarray(quaternion_wxyz, dtype=float),
             torso_size=self.torso_size,
             leg_names=self.leg_names,
-            legs=np.asarray(legs, dtype=float),
+            legs=legs,
             forces=np.asarray(forces, dtype=float),
             arrows=force_arrows(feet, forces),
             reference_path=self._reference.add(reference_position),
             actual_path=self._actual.add(position),
-            feet=np.asarray(feet, dtype=float),
+            feet=feet,
             footholds=None if footholds is None else np.asarray(footholds, dtype=float),
         )
 

@@ -268,10 +268,7 @@ def log_step(
     if scene is not None and leg_nodes is not None:
         nodes = leg_nodes()
         footholds = (step.telemetry or {}).get("foothold")  # a controller that plans footholds reports them
-        frame = scene.frame(
-            t, position, quaternion_wxyz, x_ref_now[3:6], nodes, nodes[:, -1, :], step.forces, footholds
-        )
-        sink.write_scene(frame)
+        sink.write_scene(scene.frame(t, position, quaternion_wxyz, x_ref_now[3:6], nodes, step.forces, footholds))
 
 
 def _advance(

@@ -138,12 +138,12 @@ def test_paths_keep_a_point_per_spacing_and_arrows_point_along_the_force() -> No
     legs = np.zeros((4, 2, 3))
     paths = []
     for k in range(40):  # 1 mm steps: a kept point every 10 steps
-        frame = track.frame(k / 30, [k * 1e-3, 0, 0.04], [1, 0, 0, 0], [k * 1e-3, 0, 0.04], legs, zero, zero)
+        frame = track.frame(k / 30, [k * 1e-3, 0, 0.04], [1, 0, 0, 0], [k * 1e-3, 0, 0.04], legs, zero)
         paths.append(frame.actual_path)
     assert frame.actual_path[:, 0] == pytest.approx([0.0, 0.01, 0.02, 0.03])
     assert paths[31] is paths[39] and paths[30] is not paths[29]  # unchanged between kept points: the same array
     for k in range(40, 200):
-        frame = track.frame(k / 30, [k * 1e-3, 0, 0.04], [1, 0, 0, 0], [0, 0, 0], legs, zero, zero)
+        frame = track.frame(k / 30, [k * 1e-3, 0, 0.04], [1, 0, 0, 0], [0, 0, 0], legs, zero)
     assert len(frame.actual_path) <= 8 and frame.actual_path[-1, 0] == pytest.approx(0.19)
     assert frame.actual_path[0, 0] < 0.05 and np.all(np.diff(frame.actual_path[:, 0]) > 0)
     rng = np.random.default_rng(1)
@@ -159,9 +159,7 @@ def _frames(stop: threading.Event, view: LiveView, rec: Recorder | None = None) 
     while not stop.is_set() and k < 3000:
         view.write("/cost", k / 30, {"stage": 0.5})
         view.write_pose(k / 30, [0, 0, 0.04], [1, 0, 0, 0])
-        view.write_scene(
-            track.frame(k / 30, [0, 0, 0.04], [1, 0, 0, 0], [0, 0, 0.04], legs, legs[:, -1], np.ones((4, 3)))
-        )
+        view.write_scene(track.frame(k / 30, [0, 0, 0.04], [1, 0, 0, 0], [0, 0, 0.04], legs, np.ones((4, 3))))
         k += 1
         stop.wait(0.005)
 
@@ -173,7 +171,7 @@ def test_live_server_advertises_and_streams_the_scene_to_a_client() -> None:
         track = SceneTrack(LEGS, [0.1, 0.08, 0.03])
         legs = np.zeros((4, 31, 3))
         view.write("/cost", 0.0, {"stage": 0.5})
-        view.write_scene(track.frame(0.0, [0, 0, 0.04], [1, 0, 0, 0], [0, 0, 0], legs, legs[:, -1], np.ones((4, 3))))
+        view.write_scene(track.frame(0.0, [0, 0, 0.04], [1, 0, 0, 0], [0, 0, 0], legs, np.ones((4, 3))))
         publisher = threading.Thread(target=_frames, args=(stop, view), daemon=True)
         publisher.start()
         try:

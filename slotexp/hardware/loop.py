@@ -67,8 +67,7 @@ def nominal_feet(robot: RobotModel, position: np.ndarray, quaternion: np.ndarray
 def nominal_legs(robot: RobotModel, position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
     """Straight legs (4, 2, 3) from the torso corners to the nominal feet at the measured pose: the 3D view's
     legs on the robot, whose leg shapes are not measured."""
-    rot = quat_to_rot(np.asarray(quaternion, dtype=float))
-    return straight_legs(position + robot.corners_body @ rot.T, nominal_feet(robot, position, quaternion))
+    return straight_legs(robot.corners_body, robot.feet_body, position, quaternion)
 
 
 def run_loop(

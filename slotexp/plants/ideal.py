@@ -58,8 +58,7 @@ class IdealPlant:
 
     def legs(self) -> np.ndarray:
         """Straight segments from each torso corner to its force point: the ideal plant has no legs."""
-        rot = quat_to_rot(self._s[3:7])
-        return straight_legs(self._s[0:3] + self._corners @ rot.T, self._s[0:3] + self._points @ rot.T)
+        return straight_legs(self._corners, self._points, self._s[0:3], self._s[3:7])
 
     def telemetry(self) -> dict[str, dict]:
         return {}
