@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import foxglove
@@ -124,4 +124,19 @@ class LiveView:
         self.close()
 
 
-__all__ = ["LiveView", "DEFAULT_PORT", "HOST"]
+def open_view(port: int, notify: Callable[[str], None], keep_going: bool = False) -> LiveView | None:
+    """A started :class:`LiveView`, its address told through ``notify``. A busy port is a
+    :class:`ConfigError`, or with ``keep_going`` (the robot's run: it costs nothing but the view) a
+    warning through ``notify`` and None."""
+    try:
+        view = LiveView(port)
+    except ConfigError as exc:
+        if not keep_going:
+            raise
+        notify(f"warning: {exc}; the run goes on without it (live=false silences this)")
+        return None
+    notify(f"live: open ws://{view.host}:{view.port} in Foxglove (Open connection)")
+    return view
+
+
+__all__ = ["LiveView", "DEFAULT_PORT", "HOST", "open_view"]

@@ -22,7 +22,6 @@ from typing import Any
 
 from .. import __version__
 from ..controllers import Controller, make_controller
-from ..errors import UserError
 from ..record import Recorder
 from ..robot import RobotModel, build_robot
 from ..simulation import Tee
@@ -195,15 +194,10 @@ def _live_view(cfg: HardwareSlotConfig, notify: Callable[[str], None]) -> contex
     """The live view (on by default): a busy port costs the robot run nothing but the view, so it is a warning."""
     if not cfg.live:
         return contextlib.nullcontext(None)
-    from ..live import LiveView
+    from ..live import open_view
 
-    try:
-        view = LiveView(cfg.live_port)
-    except UserError as exc:
-        notify(f"warning: {exc}; the run goes on without it (live=false silences this)")
-        return contextlib.nullcontext(None)
-    notify(f"live: open ws://{view.host}:{view.port} in Foxglove (Open connection)")
-    return view
+    view = open_view(cfg.live_port, notify, keep_going=True)
+    return contextlib.nullcontext(None) if view is None else view
 
 
 def _write_summary(

@@ -49,11 +49,9 @@ def open_live(cfg: SlotConfig) -> contextlib.AbstractContextManager[Any]:
     """The live view ``cfg.live`` asks for (a started server, announced on stderr), or a no-op context."""
     if not cfg.live:
         return contextlib.nullcontext(None)
-    from ..live import LiveView
+    from ..live import open_view
 
-    view = LiveView(cfg.live_port)
-    print(f"live: open ws://{view.host}:{view.port} in Foxglove (Open connection)", file=sys.stderr)
-    return view
+    return open_view(cfg.live_port, lambda line: print(line, file=sys.stderr))
 
 
 def run_logged(
