@@ -189,15 +189,14 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
         )
 
     # closed loop: 25 s walk on the soft plant (composed with plant=cosserat), no logging
-    loop_cfg = cfg
     start = time.perf_counter()
-    run_closed_loop(loop_cfg, loop_cfg.scenarios["baseline"], 0.2)  # compile (or load) every kernel first
+    run_closed_loop(cfg, cfg.scenarios["baseline"], 0.2)  # compile (or load) every kernel first
     warmup = time.perf_counter() - start
     stamps: list[float] = []
     sink = _StatsSink()
     start = time.perf_counter()
     summary = run_closed_loop(
-        loop_cfg, loop_cfg.scenarios["baseline"], 25.0, sink, lambda done, total: stamps.append(time.perf_counter())
+        cfg, cfg.scenarios["baseline"], 25.0, sink, lambda done, total: stamps.append(time.perf_counter())
     )
     wall = time.perf_counter() - start
     per_step = np.diff(np.concatenate([[start], stamps]))
@@ -205,7 +204,7 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     rows.append(
         BenchRow(
             "closed_loop",
-            f"walk 25 s cosserat + {loop_cfg.solver.name}",
+            f"walk 25 s cosserat + {cfg.solver.name}",
             float(np.median(per_step)) * 1e6,
             float(np.quantile(per_step, 0.99)) * 1e6,
             summary.sim_time_s / wall,
@@ -215,8 +214,8 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
                 "warmup_s": warmup,
                 "mpc_share": float(mpc.sum() / wall),
                 "mpc_median_us": float(np.median(mpc)) * 1e6,
-                "plant_dt_s": loop_cfg.sim.dt,
-                "integrator": loop_cfg.plant.integrator,
+                "plant_dt_s": cfg.sim.dt,
+                "integrator": cfg.plant.integrator,
             },
         )
     )
