@@ -55,6 +55,7 @@ from .rod import (
     LegModel,
     banded_factor,
     banded_substitute,
+    banded_substitute2,
     directors,
     elastic_energy,
     elastic_hessian_band,
@@ -297,7 +298,8 @@ def implicit_once(
 ):
     """One linearly implicit Euler step: (M - h^2 K - h C) v' = M v + h F - h C v.
 
-    Arguments as :func:`symplectic_once`; ``band``, ``rhs``, ``grad_l``, ``work`` are work arrays.
+    Arguments as :func:`symplectic_once` (``cth``/``sth`` hold the current directors and are kept
+    current); ``band``, ``rhs``, ``grad_l``, ``work`` are work arrays.
 
     K and C are the exact Jacobians of every load (elasticity, tendon, contact,
     friction, damping) at the start of the step; the tendon adds a rank-one term,
@@ -328,7 +330,7 @@ def implicit_once(
         cth,
         sth,
         rest_pos,
-        True,
+        False,
     )
     root_reaction(force, m_root, mass, par, out)
     band[:, :] = 0.0
@@ -341,8 +343,8 @@ def implicit_once(
         tendon_jacobian(pos, cth, sth, tension, par, h2, band, grad_l)
     # the root node's rows of h^2 (elastic + tendon) Hessian: the reaction must use the
     # same linearised force the leg feels over the step
-    row0 = band[0].copy()
-    row1 = band[1].copy()
+    r04, r05, r06, r07, r08 = band[0, 4], band[0, 5], band[0, 6], band[0, 7], band[0, 8]
+    r13, r14, r15, r16, r17, r18 = band[1, 3], band[1, 4], band[1, 5], band[1, 6], band[1, 7], band[1, 8]
     # mass, damping, and the right-hand side M v + h F (damping enters implicitly)
     for i in range(n):
         for comp in range(2):
@@ -379,14 +381,13 @@ def implicit_once(
         for d in range(2, nd):
             rhs[d] += shift * grad_l[d]
         # Sherman-Morrison: (A + u g^T) x = rhs with u = h^2 k_t g on the free rows
-        banded_factor(band)
-        banded_substitute(band, rhs)
         coef = h2 * par[P_TK]
         work[0] = 0.0
         work[1] = 0.0
         for d in range(2, nd):
             work[d] = coef * grad_l[d]
-        banded_substitute(band, work)
+        banded_factor(band)
+        banded_substitute2(band, rhs, work)
         gy = 0.0
         gz = 0.0
         for d in range(nd):
@@ -406,14 +407,10 @@ def implicit_once(
         pos[i, 1] += h * vel[i, 1]
     for e in range(n_el):
         omega[e] = x[3 * e + 2]
-        theta[e] += h * omega[e]
+    rotate_directors(cth, sth, theta, omega, h)
     # reaction on the root, consistent with the implicit step (momentum is exchanged exactly)
-    d0 = 0.0
-    d1 = 0.0
-    for k in range(4, 9):
-        d0 += row0[k] * x[k - 4]
-    for k in range(3, 9):
-        d1 += row1[k] * x[k - 3]
+    d0 = r04 * x[0] + r05 * x[1] + r06 * x[2] + r07 * x[3] + r08 * x[4]
+    d1 = r13 * x[0] + r14 * x[1] + r15 * x[2] + r16 * x[3] + r17 * x[4] + r18 * x[5]
     out[O_FX] -= d0 / h
     out[O_FZ] -= d1 / h
     tension_end = tension
@@ -464,6 +461,7 @@ def step_implicit(
     grad_l = np.zeros(nd)
     cth = np.zeros(theta.shape[0])
     sth = np.zeros(theta.shape[0])
+    directors(theta, cth, sth)
     work = np.zeros(nd)
     for _ in range(n_steps):
         implicit_once(

@@ -270,19 +270,52 @@ def elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, band, scal
 
 @njit(cache=True)
 def banded_factor(band):
-    """In-place LU of a banded matrix (half-bandwidth 4), no pivoting; multipliers kept below.
+    """In-place LU of a banded matrix (half-bandwidth 4), no pivoting; multipliers kept below,
+    and each pivot's reciprocal in its place on the diagonal (the solve multiplies by it).
 
     The implicit step's matrix M - h^2 K - h C is dominated by the lumped mass
-    diagonal, so elimination without pivoting is stable.
+    diagonal, so elimination without pivoting is stable. The elimination of a full-width
+    column is written out (fixed offsets, no branches): it is most of the implicit step's
+    cost, and numba keeps the row updates in registers that way.
     """
     n = band.shape[0]
     for k in range(n):
-        piv = band[k, 4]
-        for i in range(k + 1, min(k + 5, n)):
-            f = band[i, 4 + k - i] / piv
-            band[i, 4 + k - i] = f
-            if f != 0.0:
-                for j in range(k + 1, min(k + 5, n)):
+        inv = 1.0 / band[k, 4]
+        band[k, 4] = inv
+        if k + 4 < n:
+            u1 = band[k, 5]
+            u2 = band[k, 6]
+            u3 = band[k, 7]
+            u4 = band[k, 8]
+            f = band[k + 1, 3] * inv
+            band[k + 1, 3] = f
+            band[k + 1, 4] -= f * u1
+            band[k + 1, 5] -= f * u2
+            band[k + 1, 6] -= f * u3
+            band[k + 1, 7] -= f * u4
+            f = band[k + 2, 2] * inv
+            band[k + 2, 2] = f
+            band[k + 2, 3] -= f * u1
+            band[k + 2, 4] -= f * u2
+            band[k + 2, 5] -= f * u3
+            band[k + 2, 6] -= f * u4
+            f = band[k + 3, 1] * inv
+            band[k + 3, 1] = f
+            band[k + 3, 2] -= f * u1
+            band[k + 3, 3] -= f * u2
+            band[k + 3, 4] -= f * u3
+            band[k + 3, 5] -= f * u4
+            f = band[k + 4, 0] * inv
+            band[k + 4, 0] = f
+            band[k + 4, 1] -= f * u1
+            band[k + 4, 2] -= f * u2
+            band[k + 4, 3] -= f * u3
+            band[k + 4, 4] -= f * u4
+        else:  # the last four columns
+            for i in range(k + 1, n):
+                f = band[i, 4 + k - i] * inv
+                band[i, 4 + k - i] = f
+                for j in range(k + 1, n):
                     band[i, 4 + j - i] -= f * band[k, 4 + j - k]
 
 
@@ -290,14 +323,66 @@ def banded_factor(band):
 def banded_substitute(band, x):
     """Solve in place with a matrix factored by :func:`banded_factor`."""
     n = band.shape[0]
-    for k in range(n):
-        for i in range(k + 1, min(k + 5, n)):
+    for k in range(n - 4):
+        xk = x[k]
+        x[k + 1] -= band[k + 1, 3] * xk
+        x[k + 2] -= band[k + 2, 2] * xk
+        x[k + 3] -= band[k + 3, 1] * xk
+        x[k + 4] -= band[k + 4, 0] * xk
+    for k in range(max(0, n - 4), n):
+        for i in range(k + 1, n):
             x[i] -= band[i, 4 + k - i] * x[k]
-    for k in range(n - 1, -1, -1):
+    for k in range(n - 1, max(-1, n - 5), -1):
         acc = x[k]
-        for j in range(k + 1, min(k + 5, n)):
+        for j in range(k + 1, n):
             acc -= band[k, 4 + j - k] * x[j]
-        x[k] = acc / band[k, 4]
+        x[k] = acc * band[k, 4]
+    for k in range(n - 5, -1, -1):
+        x[k] = (
+            x[k] - band[k, 5] * x[k + 1] - band[k, 6] * x[k + 2] - band[k, 7] * x[k + 3] - band[k, 8] * x[k + 4]
+        ) * band[k, 4]
+
+
+@njit(cache=True)
+def banded_substitute2(band, x, y):
+    """:func:`banded_substitute` for two right-hand sides at once (the tendon's Sherman-Morrison
+    solve): the two substitutions share every load of the factor and interleave their chains."""
+    n = band.shape[0]
+    for k in range(n - 4):
+        xk = x[k]
+        yk = y[k]
+        l1 = band[k + 1, 3]
+        l2 = band[k + 2, 2]
+        l3 = band[k + 3, 1]
+        l4 = band[k + 4, 0]
+        x[k + 1] -= l1 * xk
+        y[k + 1] -= l1 * yk
+        x[k + 2] -= l2 * xk
+        y[k + 2] -= l2 * yk
+        x[k + 3] -= l3 * xk
+        y[k + 3] -= l3 * yk
+        x[k + 4] -= l4 * xk
+        y[k + 4] -= l4 * yk
+    for k in range(max(0, n - 4), n):
+        for i in range(k + 1, n):
+            x[i] -= band[i, 4 + k - i] * x[k]
+            y[i] -= band[i, 4 + k - i] * y[k]
+    for k in range(n - 1, max(-1, n - 5), -1):
+        ax = x[k]
+        ay = y[k]
+        for j in range(k + 1, n):
+            ax -= band[k, 4 + j - k] * x[j]
+            ay -= band[k, 4 + j - k] * y[j]
+        x[k] = ax * band[k, 4]
+        y[k] = ay * band[k, 4]
+    for k in range(n - 5, -1, -1):
+        u1 = band[k, 5]
+        u2 = band[k, 6]
+        u3 = band[k, 7]
+        u4 = band[k, 8]
+        d = band[k, 4]
+        x[k] = (x[k] - u1 * x[k + 1] - u2 * x[k + 2] - u3 * x[k + 3] - u4 * x[k + 4]) * d
+        y[k] = (y[k] - u1 * y[k + 1] - u2 * y[k + 2] - u3 * y[k + 3] - u4 * y[k + 4]) * d
 
 
 @njit(cache=True)
