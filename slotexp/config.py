@@ -299,6 +299,9 @@ class SolverConfig:
 class PlantConfig:
     name: str = choice_field("ideal", among=_plant_names)
     integrator: str = choice_field("implicit", "implicit", "symplectic")  # soft legs only
+    # soft legs, implicit step: steps a factored Jacobian may serve (1: a fresh one every step); a change of
+    # contact, friction regime or tendon state refreshes it sooner (slotexp/soft/integrators.py)
+    jacobian_age: int = num_field(1, lo=1, hi=100000, unit="steps")
 
 
 @dataclass

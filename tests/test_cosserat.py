@@ -152,13 +152,14 @@ def test_plant_servo_never_exceeds_342_deg_per_s() -> None:
 
 
 def test_the_default_step_walks_as_the_converged_reference_on_a_short_run():
-    # The closed-loop walk at the default step against the implicit step at 2.5e-5 s (slot bench leg's
-    # reference): the torso stays within the bench's stated tolerances.
+    # The closed-loop walk at the default step and Jacobian age against the exact implicit step at 2.5e-5 s
+    # (slot bench leg's reference): the torso stays within the bench's stated tolerances.
     from slotexp.bench._accuracy import TOLERANCE, Case, compare, run_case, with_plant, within
 
     cfg = load("plant=cosserat")
     case = Case("walk", "baseline", (0.02, 0.0), 3.0)
-    reference = run_case(with_plant(cfg, "implicit", 2.5e-5), case)
+    assert cfg.plant.jacobian_age > 1  # the default reuses its factored Jacobian
+    reference = run_case(with_plant(cfg, "implicit", 2.5e-5, 1), case)
     result = compare(run_case(cfg, case), reference)
     assert within(result), (result, TOLERANCE)
     assert result["max_dxy_mm"] > 0.0  # a different step is a different run: the comparison sees it

@@ -193,11 +193,70 @@ def test_implicit_and_symplectic_agree_on_a_transient_with_tendon_and_contact():
     assert imp[-50:, 2].mean() == pytest.approx(sym[-50:, 2].mean(), rel=0.02)
 
 
+def _loaded_transient(m, h, jacobian_age):
+    """The leg of the transient test above at step ``h``: tip (s, z) and tension every 1 ms, and how
+    many Jacobians the implicit step factored."""
+    from slotexp.soft.loads import tendon_length
+
+    sim = LegSim(
+        m,
+        make_par(
+            gravity=9.81,
+            damping=20.0,
+            k_contact=1e5,
+            d_contact=10.0,
+            mu=0.1,
+            ground=1.0,
+            tendon_k=2e4,
+            tendon_offset=0.01,
+            tendon_max=140.0,
+            n_anchor=20,
+        ),
+    )
+    sim.jacobian_age = jacobian_age
+    free0 = tendon_length(sim.pos, sim.theta, sim.root[4], sim.par)
+    traj = []
+    for k in range(200):
+        sim.free_length = free0 - 0.004 * min(1.0, k * 1e-3 / 0.1)
+        sim.step(h, int(round(1e-3 / h)), "implicit")
+        traj.append(np.r_[sim.tip, sim.out[3]])
+    return np.asarray(traj), sim.jacobian[3][m.n_nodes + 4]
+
+
+def test_a_reused_jacobian_follows_the_exact_implicit_step():
+    # The W-method (factored Jacobian kept up to 20 steps) against a fresh Jacobian every step, on the
+    # loaded transient with tendon, contact and friction: the same path, at a fraction of the factorisations.
+    m = build_leg(LegConfig())
+    exact, n_exact = _loaded_transient(m, 1e-4, 1)
+    reused, n_reused = _loaded_transient(m, 1e-4, 20)
+    assert n_exact == 2000  # one per step
+    assert 100 <= n_reused < 400  # at least one per 20 steps; contact and tendon changes add a few
+    np.testing.assert_allclose(reused[:, :2], exact[:, :2], atol=2e-5)  # tip within 0.02 mm all along
+    assert reused[-50:, 2].mean() == pytest.approx(exact[-50:, 2].mean(), rel=1e-3)
+
+
+def test_the_jacobian_is_refactored_at_its_age_and_at_a_contact_change():
+    m = uniform()
+    free = LegSim(m, make_par(gravity=9.81, damping=50.0))  # hanging, nothing changes regime
+    free.jacobian_age = 10
+    free.step(1e-4, 95, "implicit")
+    assert free.jacobian[3][m.n_nodes + 4] == 10  # steps 0, 10, ..., 90
+    # the same leg falling onto the ground: each node that touches down refactors at once
+    par = make_par(gravity=9.81, damping=5.0, k_contact=1e5, d_contact=10.0, mu=0.5, ground=1.0)
+    falling = LegSim(m, par)
+    falling.jacobian_age = 10**6
+    falling.pos[:, 1] += 1e-3
+    falling.step(1e-4, 3000, "implicit")
+    assert falling.out[4] > 0.0  # it landed
+    assert falling.jacobian[3][m.n_nodes + 4] >= 2  # the first step, and at least one touch-down
+
+
 @pytest.mark.parametrize("n", [3, 4, 5, 9, 92])
-def test_banded_solver_matches_a_dense_solve(n):
-    """The unpivoted banded LU (written out for full-width columns, generic in the last four) and
-    both substitutions solve what numpy's dense solver solves, for every size up to and past the band."""
-    from slotexp.soft.rod import banded_factor, banded_substitute, banded_substitute2
+def test_banded_solver_and_product_match_dense_algebra(n):
+    """The unpivoted banded LU and its substitution (written out for full-width rows, generic near
+    the ends) solve what numpy's dense solver solves, and the banded product is the dense product,
+    for every size up to and past the band."""
+    from slotexp.soft.rod import banded_factor, banded_multiply_subtract, banded_substitute
 
     rng = np.random.default_rng(n)
     dense = np.zeros((n, n))
@@ -206,12 +265,11 @@ def test_banded_solver_matches_a_dense_solve(n):
         for j in range(max(0, i - 4), min(n, i + 5)):
             dense[i, j] = rng.normal() + (12.0 if i == j else 0.0)  # diagonally dominant, like M - h^2 K - h C
             band[i, 4 + j - i] = dense[i, j]
-    b, c = rng.normal(size=n), rng.normal(size=n)
+    b, v = rng.normal(size=n), rng.normal(size=n)
+    out = b.copy()
+    banded_multiply_subtract(band, v, out)
+    np.testing.assert_allclose(out, b - dense @ v, rtol=1e-13, atol=1e-13)
     banded_factor(band)
     x = b.copy()
     banded_substitute(band, x)
-    y, z = b.copy(), c.copy()
-    banded_substitute2(band, y, z)
     np.testing.assert_allclose(x, np.linalg.solve(dense, b), rtol=1e-12, atol=1e-13)
-    np.testing.assert_array_equal(y, x)
-    np.testing.assert_allclose(z, np.linalg.solve(dense, c), rtol=1e-12, atol=1e-13)

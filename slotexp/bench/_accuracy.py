@@ -37,19 +37,28 @@ TOLERANCE = {"speed_error_fraction": 0.02, "max_dz_mm": 2.0, "max_dxy_mm": 3.0, 
 
 @dataclass(frozen=True)
 class Case:
-    """One closed-loop run: a scenario, a commanded velocity (m/s, body frame) and a duration (s)."""
+    """One closed-loop run: a scenario, a commanded velocity (m/s, body frame) and a duration (s).
+
+    ``judged_from`` (s): the torso and feet are compared from then on (the gait speed from
+    :data:`SPEED_FROM_S`). It is later than 0 only where the reference itself is not converged
+    before it, measured against half its step.
+    """
 
     name: str
     scenario: str
     velocity: tuple[float, float]
     duration: float
+    judged_from: float = 0.0
 
 
 CASES = (
     Case("walk", "baseline", (0.02, 0.0), 10.0),  # the forward walk at 20 mm/s
     # the 225-deg walk: a diagonal gait that heaves and tilts, more sensitive to the step than the walk
     Case("diagonal walk", "baseline", (-0.0106, -0.0106), 10.0),
-    Case("combined", "combined", (0.015, 0.0), 8.0),  # Table I's combined perturbation, push at 5 s
+    # Table I's combined perturbation, push at 5 s. Its first 3 s (set down with roll, pitch and height
+    # offsets and a sideways velocity) are not step-converged even at 2.5e-5 s: each step size dips
+    # differently there (results/README.md), so it is judged from 3 s on, through the push.
+    Case("combined", "combined", (0.015, 0.0), 8.0, judged_from=3.0),
     Case("standing push", "push_side", (0.0, 0.0), 6.0),  # a 0.4 N s sideways push at 3 s, standing
 )
 
@@ -85,10 +94,13 @@ class _TraceSink:
         pass
 
 
-def with_plant(cfg: SlotConfig, integrator: str, dt: float) -> SlotConfig:
-    """``cfg`` with the soft plant's integrator and step replaced."""
+def with_plant(cfg: SlotConfig, integrator: str, dt: float, jacobian_age: int | None = None) -> SlotConfig:
+    """``cfg`` with the soft plant's integrator, step and (if given) Jacobian age replaced."""
+    age = cfg.plant.jacobian_age if jacobian_age is None else jacobian_age
     return dataclasses.replace(
-        cfg, plant=dataclasses.replace(cfg.plant, integrator=integrator), sim=dataclasses.replace(cfg.sim, dt=dt)
+        cfg,
+        plant=dataclasses.replace(cfg.plant, integrator=integrator, jacobian_age=age),
+        sim=dataclasses.replace(cfg.sim, dt=dt),
     )
 
 
@@ -112,10 +124,12 @@ def gait_speed(trace: Trace) -> float:
     return float(np.linalg.norm(trace.x[-1, 3:5] - trace.x[k, 3:5]) / span)
 
 
-def compare(run: Trace, ref: Trace) -> dict[str, float]:
-    """How far ``run`` is from ``ref`` (same case): the module docstring's figures."""
+def compare(run: Trace, ref: Trace, judged_from: float = 0.0) -> dict[str, float]:
+    """How far ``run`` is from ``ref`` (same case): the module docstring's figures, the torso's and the
+    feet's from ``judged_from`` (s) on."""
     n = min(len(run.t), len(ref.t))
-    dx = run.x[:n] - ref.x[:n]
+    k = int(np.searchsorted(ref.t[:n], judged_from - 1e-9))
+    dx = run.x[k:n] - ref.x[k:n]
     ref_speed = gait_speed(ref)
     return {
         "speed_mm_s": 1000.0 * gait_speed(run),
@@ -124,7 +138,7 @@ def compare(run: Trace, ref: Trace) -> dict[str, float]:
         "max_dz_mm": 1000.0 * float(np.max(np.abs(dx[:, 5]))),
         "max_dxy_mm": 1000.0 * float(np.max(np.linalg.norm(dx[:, 3:5], axis=1))),
         "max_dattitude_deg": float(np.degrees(np.max(np.abs(dx[:, 0:2])))),
-        "rms_dnormal_n": float(np.sqrt(np.mean((run.normal[:n] - ref.normal[:n]) ** 2))),
+        "rms_dnormal_n": float(np.sqrt(np.mean((run.normal[k:n] - ref.normal[k:n]) ** 2))),
         "wall_s": run.wall_s,
         "real_time_factor": real_time_factor(run),
     }

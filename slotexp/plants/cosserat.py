@@ -28,7 +28,7 @@ from ..config import SlotConfig
 from ..errors import DivergenceError
 from ..jit import njit
 from ..robot import RobotModel
-from ..soft.integrators import divergence_message, implicit_once, stable_dt, symplectic_once
+from ..soft.integrators import divergence_message, implicit_once, jacobian_state, stable_dt, symplectic_once
 from ..soft.loads import rest_free_length
 from ..soft.params import O_DIV, O_F, O_FX, O_FZ, O_M, O_N, O_T, OUT, leg_params
 from ..soft.rod import LegModel, build_leg
@@ -81,23 +81,29 @@ def coupled_steps(
     mu_lat,
     v_eps,
     implicit,
+    max_age,
     h,
     n_steps,
     normal,
     out,
     force,
     moment,
-    band,
     rhs,
-    grad_l,
+    vflat,
     cth,
     sth,
-    work,
+    lu,
+    kband,
+    jvec,
+    jmeta,
     reaction,
     hold_torso,
 ):
-    # cth/sth are (4, E): each leg's directors, kept current by the symplectic step
     """Advance torso (p q v w_body) and four legs ``n_steps`` steps of ``h``.
+
+    ``cth``/``sth`` (4, E) are each leg's directors, kept current by the symplectic step;
+    ``lu``, ``kband``, ``jvec``, ``jmeta`` each leg's Jacobian state for the implicit step,
+    whose factorisation serves up to ``max_age`` steps (:func:`implicit_once`).
 
     ``reaction`` (4, 6) receives each leg's force and moment on the torso (world)
     at the last step. With ``hold_torso`` the torso stays where it is (the legs settle
@@ -181,12 +187,15 @@ def coupled_steps(
                     out[i],
                     force,
                     moment,
-                    band,
+                    lu[i],
+                    kband[i],
+                    jvec[i],
+                    jmeta[i],
+                    max_age,
                     rhs,
-                    grad_l,
+                    vflat,
                     cth[i],
                     sth[i],
-                    work,
                 )
             else:
                 symplectic_once(
@@ -313,18 +322,21 @@ def batch_steps(
     mu_lat,
     v_eps,
     implicit,
+    max_age,
     h,
     n_steps,
     normal,
     out,
     force,
     moment,
-    band,
     rhs,
-    grad_l,
+    vflat,
     cth,
     sth,
-    work,
+    lu,
+    kband,
+    jvec,
+    jmeta,
     reaction,
     done,
 ):
@@ -364,18 +376,21 @@ def batch_steps(
             mu_lat,
             v_eps,
             implicit,
+            max_age,
             h,
             n_steps,
             normal[b],
             out[b],
             force[b],
             moment[b],
-            band[b],
             rhs[b],
-            grad_l[b],
+            vflat[b],
             cth[b],
             sth[b],
-            work[b],
+            lu[b],
+            kband[b],
+            jvec[b],
+            jmeta[b],
             reaction[b],
             False,
         )
@@ -445,15 +460,15 @@ class CosseratPlant:
         self.out = np.zeros((4, len(OUT)))
         self.reaction = np.zeros((4, 6))
         nd = 3 * n - 1
+        # scratch (force, moment, rhs, vflat), the directors, and each leg's implicit-step Jacobian
         self._work = (
             np.zeros((n, 2)),
             np.zeros(n - 1),
-            np.zeros((nd, 9)),
             np.zeros(nd),
             np.zeros(nd),
             np.cos(self.theta),
             np.sin(self.theta),
-            np.zeros(nd),
+            *jacobian_state(n, 4),
         )
         self.marker_nodes = sorted({0, (n - 1) // 3, 2 * (n - 1) // 3, n - 1})
         self._settle_legs(SETTLE_S)
@@ -606,6 +621,7 @@ class CosseratPlant:
             self.cfg.robot.contact.friction,
             self.cfg.robot.contact.slip_velocity,
             self.implicit,
+            self.cfg.plant.jacobian_age,
             h,
             n,
             own["normal"],
@@ -667,8 +683,8 @@ class CosseratBatch:
         first = plants[0]
         if any(p.cfg is not first.cfg and (p.cfg.robot != first.cfg.robot or p.dt != first.dt) for p in plants):
             raise ValueError("every plant in a batch must share the robot and sim.dt of the first")
-        if any(p.implicit != first.implicit for p in plants):
-            raise ValueError("every plant in a batch must use the same integrator")
+        if any(p.cfg.plant != first.cfg.plant for p in plants):
+            raise ValueError("every plant in a batch must use the same integrator and Jacobian age")
         self.plants = plants
         self.stacked = {name: np.stack([getattr(p, name) for p in plants]) for name in _OWN}
         self.work = tuple(np.stack([p._work[k] for p in plants]) for k in range(len(first._work)))

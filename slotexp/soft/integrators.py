@@ -9,10 +9,13 @@ advance the rod under its elasticity (:mod:`slotexp.soft.rod`) and loads
 - symplectic (semi-implicit) Euler: v' = v + h M^-1 F(x), x' = x + h v', with the
   damping, contact damping and friction implicit; cheap per step but bounded by
   the rod's stiffest mode, h < 2 / omega_max (:func:`stable_dt`);
-- linearly implicit Euler: (M - h^2 K - h C) v' = M v + h F - h C v with K and C
-  the exact Jacobians of every load at the start of the step, solved by a banded
-  LU (the tendon's rank-one term by Sherman-Morrison); stable at steps set by
-  accuracy, not by the stiffest mode.
+- linearly implicit Euler: (M - h^2 K - h C) dv = h F - h^2 K v with K and C the
+  Jacobians of every load, solved by a banded LU (the tendon's rank-one term by
+  Sherman-Morrison); stable at steps set by accuracy, not by the stiffest mode. The
+  factored Jacobian may serve several steps (``jacobian_age``, a W-method): F is
+  always current, and a change of contact, friction regime or tendon state, which
+  would change the stiff modes, refactors it at once. Factoring is most of an exact
+  step's cost; a reused factorisation leaves the forces, one product and one solve.
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ from ..errors import ConfigError, DivergenceError
 from ..jit import njit
 from .loads import (
     conservative_forces,
-    contact_linearised,
+    contact_force,
+    contact_jacobian,
     contact_proximal,
     damping_reaction,
     dissipative_params,
@@ -54,8 +58,8 @@ from .params import (
 from .rod import (
     LegModel,
     banded_factor,
+    banded_multiply_subtract,
     banded_substitute,
-    banded_substitute2,
     directors,
     elastic_energy,
     elastic_hessian_band,
@@ -289,22 +293,34 @@ def implicit_once(
     out,
     force,
     moment,
-    band,
+    lu,
+    kband,
+    jvec,
+    jmeta,
+    max_age,
     rhs,
-    grad_l,
+    vflat,
     cth,
     sth,
-    work,
 ):
-    """One linearly implicit Euler step: (M - h^2 K - h C) v' = M v + h F - h C v.
+    """One linearly implicit Euler step, W (M - h^2 K - h C) dv = h F(x, v) - h^2 K v, v' = v + dv.
 
-    Arguments as :func:`symplectic_once` (``cth``/``sth`` hold the current directors and are kept
-    current); ``band``, ``rhs``, ``grad_l``, ``work`` are work arrays.
+    Arguments as :func:`symplectic_once` (``cth``/``sth`` are set from theta here: numba
+    vectorises that loop, which costs less than turning them). K and C are the Jacobians
+    of every load (elasticity, tendon, contact, friction, damping); the tendon adds a
+    rank-one term to K, handled by Sherman-Morrison around the banded solve. The root
+    node's rows are rows of the identity (its velocity is prescribed). ``rhs`` and
+    ``vflat`` are work arrays (3N - 1).
 
-    K and C are the exact Jacobians of every load (elasticity, tendon, contact,
-    friction, damping) at the start of the step; the tendon adds a rank-one term,
-    handled by Sherman-Morrison around the banded solve. The root node's rows are
-    rows of the identity with the prescribed velocity on the right.
+    The factored W and h^2 K are the leg's own state: ``lu``, ``kband``; ``jvec`` = the
+    tendon's W^-1 u and grad L; ``jmeta`` = each node's contact regime, the cable's state
+    (slack, taut, at the stall), the factorisation's age in steps, 1 + g^T W^-1 u, its step,
+    and a count of factorisations. They are refreshed when the step changes, a node's
+    contact regime or the cable's state changes, or they are ``max_age`` steps old.
+    ``max_age`` = 1 is the exact linearly implicit Euler step; with larger ages the
+    Jacobians are those of up to ``max_age`` - 1 steps earlier (a W-method: still
+    consistent, since F is always current; the structural changes that would make it
+    unstable refresh them at once).
     """
     n = pos.shape[0]
     n_el = theta.shape[0]
@@ -330,76 +346,108 @@ def implicit_once(
         cth,
         sth,
         rest_pos,
-        False,
+        True,
     )
     root_reaction(force, m_root, mass, par, out)
-    band[:, :] = 0.0
-    # -h^2 K_elastic = +h^2 H
-    elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, band, h2)
-    # tendon: band part T * hess(L), rank-one part k_t grad L grad L^T
     taut = tension > 0.0 and tension < par[P_TMAX]
-    grad_l[:] = 0.0
-    if tension > 0.0:
-        tendon_jacobian(pos, cth, sth, tension, par, h2, band, grad_l)
-    # the root node's rows of h^2 (elastic + tendon) Hessian: the reaction must use the
-    # same linearised force the leg feels over the step
-    r04, r05, r06, r07, r08 = band[0, 4], band[0, 5], band[0, 6], band[0, 7], band[0, 8]
-    r13, r14, r15, r16, r17, r18 = band[1, 3], band[1, 4], band[1, 5], band[1, 6], band[1, 7], band[1, 8]
-    # mass, damping, and the right-hand side M v + h F (damping enters implicitly)
+    cable = 0.0 if tension <= 0.0 else (1.0 if taut else 2.0)  # slack, taut, at the servo's stall
+    i_cable, i_age, i_gz, i_h = n, n + 1, n + 2, n + 3
+    fresh = jmeta[i_age] >= max_age or jmeta[i_h] != h or jmeta[i_cable] != cable
+    # the velocity-dependent forces at the start of the step: damping towards the root, contact
     for i in range(n):
         for comp in range(2):
             d = 3 * i + comp
-            m = mass[i]
-            band[d, 4] += m * (1.0 + h * c)
-            rhs[d] = m * vel[i, comp] + h * (force[i, comp] + c * m * root[2 + comp])
+            rhs[d] = h * (force[i, comp] + c * mass[i] * (root[2 + comp] - vel[i, comp]))
+            vflat[d] = vel[i, comp]
     for e in range(n_el):
         d = 3 * e + 2
-        band[d, 4] += inertia[e] * (1.0 + h * c)
-        rhs[d] = inertia[e] * omega[e] + h * (moment[e] + c * inertia[e] * root[5])
-    # contact and friction, linearised
+        rhs[d] = h * (moment[e] + c * inertia[e] * (root[5] - omega[e]))
+        vflat[d] = omega[e]
     total_n = 0.0
     total_f = 0.0
     for i in range(1, n):
-        normal[i] = 0.0
+        nrm, fx, regime = 0.0, 0.0, 0
         if ground and pos[i, 1] < 0.0:
-            nrm, fx = contact_linearised(i, -pos[i, 1], vel[i, 0], vel[i, 1], h, k_c, d_c, mu, v_eps, band, rhs)
-            normal[i] = nrm
-            total_n += nrm
-            total_f += fx
+            nrm, fx, _, regime = contact_force(-pos[i, 1], vel[i, 0], vel[i, 1], k_c, d_c, mu, v_eps)
+            rhs[3 * i] += h * fx
+            rhs[3 * i + 1] += h * nrm
+        normal[i] = nrm
+        total_n += nrm
+        total_f += fx
+        if regime != jmeta[i]:
+            fresh = True
+    g = jvec[1]
+    smu = jvec[0]
+    if fresh:
+        # h^2 K (elastic, tendon band part, contact) into kband; W = M (1 + h c) + kband + h C into lu
+        kband[:, :] = 0.0
+        lu[:, :] = 0.0
+        elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, kband, h2)
+        g[:] = 0.0
+        if tension > 0.0:
+            tendon_jacobian(pos, cth, sth, tension, par, h2, kband, g)
+        jmeta[0] = 0.0
+        for i in range(1, n):
+            regime = 0
+            if ground and pos[i, 1] < 0.0:
+                nrm, _, sat, regime = contact_force(-pos[i, 1], vel[i, 0], vel[i, 1], k_c, d_c, mu, v_eps)
+                contact_jacobian(i, nrm, sat, regime, h, k_c, d_c, mu, v_eps, kband, lu)
+            jmeta[i] = regime
+        for d in range(nd):
+            for k in range(9):
+                lu[d, k] += kband[d, k]
+        for i in range(n):
+            lu[3 * i, 4] += mass[i] * (1.0 + h * c)
+            lu[3 * i + 1, 4] += mass[i] * (1.0 + h * c)
+        for e in range(n_el):
+            lu[3 * e + 2, 4] += inertia[e] * (1.0 + h * c)
+        # prescribed root node: identity rows
+        for d in range(2):
+            for k in range(9):
+                lu[d, k] = 0.0
+            lu[d, 4] = 1.0
+        banded_factor(lu)
+        if taut:
+            # Sherman-Morrison for the rank-one part h^2 k_t g g^T on the free rows: W^-1 u, u = h^2 k_t g
+            smu[0] = 0.0
+            smu[1] = 0.0
+            for d in range(2, nd):
+                smu[d] = h2 * par[P_TK] * g[d]
+            banded_substitute(lu, smu)
+            gz = 1.0
+            for d in range(nd):
+                gz += g[d] * smu[d]
+            jmeta[i_gz] = gz
+        jmeta[i_cable] = cable
+        jmeta[i_h] = h
+        jmeta[i_age] = 0.0
+        jmeta[n + 4] += 1.0
+    jmeta[i_age] += 1.0
+    # - h^2 K v, with the K the factorisation was made with
+    banded_multiply_subtract(kband, vflat, rhs)
     # the clamp angle moves at root[5] over the step: its spring acts on theta_0
     rhs[2] += h2 * ei[0] / voronoi[0] * root[5]
-    # prescribed root node: identity rows
-    for d in range(2):
-        for k in range(9):
-            band[d, k] = 0.0
-        band[d, 4] = 1.0
-    rhs[0] = root[2]
-    rhs[1] = root[3]
     if taut:
-        # the tension also changes as the root angle turns over the step
-        shift = h2 * par[P_TK] * par[P_TOFF] * root[5]
+        gv = 0.0
+        for d in range(nd):
+            gv += g[d] * vflat[d]
+        # the tendon's rank-one stiffness, and its tension's change as the root angle turns over the step
+        coef = h2 * par[P_TK] * (par[P_TOFF] * root[5] - gv)
         for d in range(2, nd):
-            rhs[d] += shift * grad_l[d]
-        # Sherman-Morrison: (A + u g^T) x = rhs with u = h^2 k_t g on the free rows
-        coef = h2 * par[P_TK]
-        work[0] = 0.0
-        work[1] = 0.0
-        for d in range(2, nd):
-            work[d] = coef * grad_l[d]
-        banded_factor(band)
-        banded_substitute2(band, rhs, work)
+            rhs[d] += coef * g[d]
+    rhs[0] = 0.0
+    rhs[1] = 0.0
+    banded_substitute(lu, rhs)
+    if taut:
         gy = 0.0
-        gz = 0.0
         for d in range(nd):
-            gy += grad_l[d] * rhs[d]
-            gz += grad_l[d] * work[d]
-        ratio = gy / (1.0 + gz)
+            gy += g[d] * rhs[d]
+        ratio = gy / jmeta[i_gz]
         for d in range(nd):
-            rhs[d] -= ratio * work[d]
-    else:
-        banded_factor(band)
-        banded_substitute(band, rhs)
-    x = rhs
+            rhs[d] -= ratio * smu[d]
+    for d in range(nd):
+        vflat[d] += rhs[d]
+    x = vflat
     for i in range(n):
         vel[i, 0] = x[3 * i]
         vel[i, 1] = x[3 * i + 1]
@@ -407,19 +455,24 @@ def implicit_once(
         pos[i, 1] += h * vel[i, 1]
     for e in range(n_el):
         omega[e] = x[3 * e + 2]
-    rotate_directors(cth, sth, theta, omega, h)
-    # reaction on the root, consistent with the implicit step (momentum is exchanged exactly)
-    d0 = r04 * x[0] + r05 * x[1] + r06 * x[2] + r07 * x[3] + r08 * x[4]
-    d1 = r13 * x[0] + r14 * x[1] + r15 * x[2] + r16 * x[3] + r17 * x[4] + r18 * x[5]
+        theta[e] += h * omega[e]
+    # reaction on the root, consistent with the implicit step (momentum is exchanged exactly): the root
+    # rows of h^2 (elastic + tendon) K
+    d0 = 0.0
+    d1 = 0.0
+    for k in range(4, 9):
+        d0 += kband[0, k] * x[k - 4]
+    for k in range(3, 9):
+        d1 += kband[1, k] * x[k - 3]
     out[O_FX] -= d0 / h
     out[O_FZ] -= d1 / h
     tension_end = tension
     if taut:
         gx = 0.0
         for d in range(nd):
-            gx += grad_l[d] * x[d]
-        out[O_FX] -= h * par[P_TK] * grad_l[0] * gx
-        out[O_FZ] -= h * par[P_TK] * grad_l[1] * gx
+            gx += g[d] * x[d]
+        out[O_FX] -= h * par[P_TK] * g[0] * gx
+        out[O_FZ] -= h * par[P_TK] * g[1] * gx
         tension_end = tension + par[P_TK] * h * (gx - par[P_TOFF] * root[5])
     k0 = ei[0] / voronoi[0]
     out[O_M] = k0 * (theta[0] - root[4] - h * root[5])
@@ -427,6 +480,16 @@ def implicit_once(
         out[O_M] += tension_end * par[P_TOFF]
     damping_reaction(vel, omega, mass, inertia, par, root, out)
     _finish_step(pos, tension, total_n, total_f, out)
+
+
+def jacobian_state(n_nodes: int, legs: int | None = None) -> tuple[np.ndarray, ...]:
+    """A leg's (or ``legs`` legs') implicit-step Jacobian state for :func:`implicit_once`, empty: the
+    first step factors. (lu, kband, jvec, jmeta)."""
+    nd = 3 * n_nodes - 1
+    lead = () if legs is None else (legs,)
+    meta = np.zeros(lead + (n_nodes + 5,))
+    meta[..., n_nodes + 1] = np.inf  # age: refresh at the first step
+    return np.zeros(lead + (nd, 9)), np.zeros(lead + (nd, 9)), np.zeros(lead + (2, nd)), meta
 
 
 @njit(cache=True)
@@ -451,18 +514,20 @@ def step_implicit(
     n_steps,
     normal,
     out,
+    lu,
+    kband,
+    jvec,
+    jmeta,
+    max_age,
 ):
-    """``n_steps`` of :func:`implicit_once` with the root held."""
+    """``n_steps`` of :func:`implicit_once` with the root held (the Jacobian state is the caller's)."""
     nd = 3 * pos.shape[0] - 1
     force = np.zeros(pos.shape)
     moment = np.zeros(theta.shape[0])
-    band = np.zeros((nd, 9))
     rhs = np.zeros(nd)
-    grad_l = np.zeros(nd)
+    vflat = np.zeros(nd)
     cth = np.zeros(theta.shape[0])
     sth = np.zeros(theta.shape[0])
-    directors(theta, cth, sth)
-    work = np.zeros(nd)
     for _ in range(n_steps):
         implicit_once(
             pos,
@@ -486,12 +551,15 @@ def step_implicit(
             out,
             force,
             moment,
-            band,
+            lu,
+            kband,
+            jvec,
+            jmeta,
+            max_age,
             rhs,
-            grad_l,
+            vflat,
             cth,
             sth,
-            work,
         )
         if out[O_DIV] > 0.0:
             return
@@ -594,13 +662,15 @@ class LegSim:
         self.normal = np.zeros(model.n_nodes)
         self.out = np.zeros(len(OUT))
         self.time = 0.0
+        self.jacobian_age = 1  # steps the implicit step may reuse its factored Jacobian (1: none)
+        self.jacobian = jacobian_state(model.n_nodes)
 
     def step(self, h: float, n_steps: int = 1, integrator: str = "symplectic") -> None:
-        kernel = step_implicit if integrator == "implicit" else step_symplectic
         m = self.model
-        if integrator == "implicit" and self.par[P_PAPER] > 0.5:
+        implicit = integrator == "implicit"
+        if implicit and self.par[P_PAPER] > 0.5:
             raise ConfigError("the paper's leg model has no Jacobian: use the symplectic integrator with it")
-        kernel(
+        args = (
             self.pos,
             self.vel,
             self.theta,
@@ -622,6 +692,10 @@ class LegSim:
             self.normal,
             self.out,
         )
+        if implicit:
+            step_implicit(*args, *self.jacobian, self.jacobian_age)
+        else:
+            step_symplectic(*args)
         self.time += h * n_steps
         if self.out[O_DIV] > 0.0:
             limit = stable_dt(m, self.par[P_K] if self.par[P_GROUND] > 0.5 else 0.0)

@@ -236,31 +236,41 @@ def contact_proximal(vx, vz, vel_z, force_z, depth, hm, hc, damp, root_vz, k_c, 
 
 
 @njit(cache=True)
-def contact_linearised(i, depth, vx, vz, h, k_c, d_c, mu, v_eps, band, rhs):
-    """Add the contact and friction of node ``i`` (below the ground), linearised, to the implicit step.
+def contact_force(depth, vx, vz, k_c, d_c, mu, v_eps):
+    """Contact and friction of a node ``depth`` below the ground, for the implicit step.
 
-    N = k depth - d vz and F_x = -mu N sat(vx / v_eps) with their Jacobians in
-    position and velocity go into ``band`` (as h^2 dF/dx + h dF/dv) and ``rhs``.
-    Returns (N, F_x), (0, 0) when the node is not pressed.
+    N = k depth - d vz and F_x = -mu N sat(vx / v_eps). Returns (N, F_x, sat, regime):
+    regime 0 when the node is not pressed (N, F_x = 0), 1 sticking (|vx| < v_eps, where
+    the friction is a stiff viscous law), 2 sliding forwards, 3 backwards. The implicit
+    step's Jacobian changes structurally only when a regime does.
     """
-    h2 = h * h
     nrm = k_c * depth - d_c * vz
-    if nrm > 0.0:
-        dz = 3 * i + 1
-        dx = 3 * i
-        # N = -k z - d vz  -> dF/dz = -k, dF/dvz = -d
-        band[dz, 4] += h2 * k_c + h * d_c
-        rhs[dz] += h * nrm + h * d_c * vz
-        # F_x = -mu N sat(vx/v_eps)
-        r = vx / v_eps
-        sat = max(-1.0, min(1.0, r))
-        fx = -mu * nrm * sat
-        rhs[dx] += h * fx
-        if abs(r) < 1.0:
-            band[dx, 4] += h * mu * nrm / v_eps
-            rhs[dx] += h * mu * nrm / v_eps * vx
-        # coupling through N: dFx/dz = mu k sat, dFx/dvz = mu d sat
-        band[dx, 4 + 1] += -h2 * mu * k_c * sat - h * mu * d_c * sat
-        rhs[dx] += -h * mu * d_c * sat * vz
-        return nrm, fx
-    return 0.0, 0.0
+    if nrm <= 0.0:
+        return 0.0, 0.0, 0.0, 0
+    r = vx / v_eps
+    sat = max(-1.0, min(1.0, r))
+    if abs(r) < 1.0:
+        regime = 1
+    elif r > 0.0:
+        regime = 2
+    else:
+        regime = 3
+    return nrm, -mu * nrm * sat, sat, regime
+
+
+@njit(cache=True)
+def contact_jacobian(i, nrm, sat, regime, h, k_c, d_c, mu, v_eps, kband, band):
+    """Node ``i``'s contact and friction Jacobians for the implicit step (:func:`contact_force`'s law):
+    h^2 (-dF/dx) into ``kband`` and h (-dF/dv) into ``band``, in the step's banded layout."""
+    if regime == 0:
+        return
+    h2 = h * h
+    dz = 3 * i + 1
+    dx = 3 * i
+    kband[dz, 4] += h2 * k_c  # dN/dz = -k
+    band[dz, 4] += h * d_c  # dN/dvz = -d
+    if regime == 1:
+        band[dx, 4] += h * mu * nrm / v_eps  # dF_x/dvx on the sticking branch
+    # through N: dF_x/dz = mu k sat, dF_x/dvz = mu d sat
+    kband[dx, 5] -= h2 * mu * k_c * sat
+    band[dx, 5] -= h * mu * d_c * sat

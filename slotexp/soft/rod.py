@@ -319,70 +319,91 @@ def banded_factor(band):
                     band[i, 4 + j - i] -= f * band[k, 4 + j - k]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"contract"})
 def banded_substitute(band, x):
-    """Solve in place with a matrix factored by :func:`banded_factor`."""
+    """Solve in place with a matrix factored by :func:`banded_factor`.
+
+    Each sweep is a chain of dependent multiply-adds; the four entries ahead of the
+    chain are carried in registers (not re-read from ``x``), and multiply-adds may be
+    fused, which is what bounds its speed.
+    """
     n = band.shape[0]
+    if n < 5:
+        for k in range(n):
+            for i in range(k + 1, n):
+                x[i] -= band[i, 4 + k - i] * x[k]
+        for k in range(n - 1, -1, -1):
+            acc = x[k]
+            for j in range(k + 1, n):
+                acc -= band[k, 4 + j - k] * x[j]
+            x[k] = acc * band[k, 4]
+        return
+    a0 = x[0]
+    a1 = x[1]
+    a2 = x[2]
+    a3 = x[3]
     for k in range(n - 4):
-        xk = x[k]
-        x[k + 1] -= band[k + 1, 3] * xk
-        x[k + 2] -= band[k + 2, 2] * xk
-        x[k + 3] -= band[k + 3, 1] * xk
-        x[k + 4] -= band[k + 4, 0] * xk
-    for k in range(max(0, n - 4), n):
-        for i in range(k + 1, n):
-            x[i] -= band[i, 4 + k - i] * x[k]
-    for k in range(n - 1, max(-1, n - 5), -1):
-        acc = x[k]
-        for j in range(k + 1, n):
-            acc -= band[k, 4 + j - k] * x[j]
-        x[k] = acc * band[k, 4]
+        a4 = x[k + 4] - band[k + 4, 0] * a0
+        a3 -= band[k + 3, 1] * a0
+        a2 -= band[k + 2, 2] * a0
+        a1 -= band[k + 1, 3] * a0
+        x[k] = a0
+        a0 = a1
+        a1 = a2
+        a2 = a3
+        a3 = a4
+    # the last four rows of L
+    a1 -= band[n - 3, 3] * a0
+    a2 -= band[n - 2, 2] * a0
+    a3 -= band[n - 1, 1] * a0
+    a2 -= band[n - 2, 3] * a1
+    a3 -= band[n - 1, 2] * a1
+    a3 -= band[n - 1, 3] * a2
+    # U, from the bottom
+    b1 = a3 * band[n - 1, 4]
+    b2 = (a2 - band[n - 2, 5] * b1) * band[n - 2, 4]
+    b3 = (a1 - band[n - 3, 5] * b2 - band[n - 3, 6] * b1) * band[n - 3, 4]
+    b4 = (a0 - band[n - 4, 5] * b3 - band[n - 4, 6] * b2 - band[n - 4, 7] * b1) * band[n - 4, 4]
+    x[n - 1] = b1
+    x[n - 2] = b2
+    x[n - 3] = b3
+    x[n - 4] = b4
     for k in range(n - 5, -1, -1):
-        x[k] = (
-            x[k] - band[k, 5] * x[k + 1] - band[k, 6] * x[k + 2] - band[k, 7] * x[k + 3] - band[k, 8] * x[k + 4]
-        ) * band[k, 4]
+        b0 = (x[k] - band[k, 8] * b1 - band[k, 7] * b2 - band[k, 6] * b3 - band[k, 5] * b4) * band[k, 4]
+        x[k] = b0
+        b1 = b2
+        b2 = b3
+        b3 = b4
+        b4 = b0
 
 
 @njit(cache=True)
-def banded_substitute2(band, x, y):
-    """:func:`banded_substitute` for two right-hand sides at once (the tendon's Sherman-Morrison
-    solve): the two substitutions share every load of the factor and interleave their chains."""
+def banded_multiply_subtract(band, v, out):
+    """out -= band @ v, for a banded matrix in :func:`banded_factor`'s layout (unfactored); the
+    interior rows written out, as in the factorisation."""
     n = band.shape[0]
-    for k in range(n - 4):
-        xk = x[k]
-        yk = y[k]
-        l1 = band[k + 1, 3]
-        l2 = band[k + 2, 2]
-        l3 = band[k + 3, 1]
-        l4 = band[k + 4, 0]
-        x[k + 1] -= l1 * xk
-        y[k + 1] -= l1 * yk
-        x[k + 2] -= l2 * xk
-        y[k + 2] -= l2 * yk
-        x[k + 3] -= l3 * xk
-        y[k + 3] -= l3 * yk
-        x[k + 4] -= l4 * xk
-        y[k + 4] -= l4 * yk
-    for k in range(max(0, n - 4), n):
-        for i in range(k + 1, n):
-            x[i] -= band[i, 4 + k - i] * x[k]
-            y[i] -= band[i, 4 + k - i] * y[k]
-    for k in range(n - 1, max(-1, n - 5), -1):
-        ax = x[k]
-        ay = y[k]
-        for j in range(k + 1, n):
-            ax -= band[k, 4 + j - k] * x[j]
-            ay -= band[k, 4 + j - k] * y[j]
-        x[k] = ax * band[k, 4]
-        y[k] = ay * band[k, 4]
-    for k in range(n - 5, -1, -1):
-        u1 = band[k, 5]
-        u2 = band[k, 6]
-        u3 = band[k, 7]
-        u4 = band[k, 8]
-        d = band[k, 4]
-        x[k] = (x[k] - u1 * x[k + 1] - u2 * x[k + 2] - u3 * x[k + 3] - u4 * x[k + 4]) * d
-        y[k] = (y[k] - u1 * y[k + 1] - u2 * y[k + 2] - u3 * y[k + 3] - u4 * y[k + 4]) * d
+    for d in range(min(4, n)):
+        acc = 0.0
+        for j in range(0, min(n, d + 5)):
+            acc += band[d, 4 + j - d] * v[j]
+        out[d] -= acc
+    for d in range(4, n - 4):
+        out[d] -= (
+            band[d, 0] * v[d - 4]
+            + band[d, 1] * v[d - 3]
+            + band[d, 2] * v[d - 2]
+            + band[d, 3] * v[d - 1]
+            + band[d, 4] * v[d]
+            + band[d, 5] * v[d + 1]
+            + band[d, 6] * v[d + 2]
+            + band[d, 7] * v[d + 3]
+            + band[d, 8] * v[d + 4]
+        )
+    for d in range(max(4, n - 4), n):
+        acc = 0.0
+        for j in range(d - 4, n):
+            acc += band[d, 4 + j - d] * v[j]
+        out[d] -= acc
 
 
 @njit(cache=True)
