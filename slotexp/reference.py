@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .body import rot_z
 from .config import GaitConfig
 from .metrics import wrap_angle
 
@@ -49,11 +48,12 @@ def reference(
     yaw_ref = x[2] + wrap_angle(yaw_des - x[2])  # unwrapped near the measured yaw
     out = np.zeros((n, 12))
     out[:, 2] = yaw_ref
-    v_body = np.array([gait.velocity[0], gait.velocity[1], 0.0])
-    v_world = np.stack([rot_z(y) @ v_body for y in yaw_des])
-    out[:, 9:12] = v_world
+    vx, vy = gait.velocity[0], gait.velocity[1]
+    c, s = np.cos(yaw_des), np.sin(yaw_des)
+    v_world = np.column_stack([c * vx - s * vy, s * vx + c * vy])  # rot_z(yaw_des) v_body
+    out[:, 9:11] = v_world
     if path_origin is None:
-        out[:, 3:5] = x[3:5] + (k * period)[:, None] * v_world[:, 0:2]
+        out[:, 3:5] = x[3:5] + (k * period)[:, None] * v_world
     else:
         out[:, 3:5] = desired_path(np.asarray(path_origin, dtype=float), gait, tk)
     out[:, 5] = gait.height

@@ -85,3 +85,29 @@ def test_robot_geometry_matches_paper():
     )
     np.testing.assert_allclose(yaw, [45, 135, 225, 315], atol=1e-9)
     assert np.all(np.linalg.eigvalsh(robot.inertia_body) > 0)
+
+
+def test_the_soft_plants_torso_step_is_semi_implicit_euler_with_the_gyroscopic_term():
+    # torso_step is written out in scalars for speed; it must be the array form it replaced.
+    from slotexp.body import quat_mul, torso_step
+
+    rng = np.random.default_rng(3)
+    inertia = np.array([[2.0e-4, 1.0e-5, 0.0], [1.0e-5, 3.0e-4, 2.0e-6], [0.0, 2.0e-6, 4.0e-4]])
+    inv = np.linalg.inv(inertia)
+    q = rng.normal(size=4)
+    torso = np.concatenate([rng.normal(size=3), q / np.linalg.norm(q), rng.normal(size=3), rng.normal(size=3)])
+    force, torque, h, mass = rng.normal(size=3), rng.normal(size=3) * 1e-3, 2e-4, 0.35
+    rot = quat_to_rot(torso[3:7])
+    # the array form
+    v = torso[7:10] + h * force / mass
+    wb = torso[10:13]
+    w = wb + h * inv @ (rot.T @ torque - np.cross(wb, inertia @ wb))
+    half = 0.5 * h * w
+    angle = np.linalg.norm(half)
+    qn = quat_mul(torso[3:7], np.concatenate([[np.cos(angle)], half * np.sin(angle) / angle]))
+    expected = np.concatenate([torso[0:3] + h * v, qn / np.linalg.norm(qn), v, w])
+    torso_step(torso, *force, *torque, rot, mass, inertia, inv, h)
+    np.testing.assert_allclose(torso, expected, rtol=1e-13, atol=1e-15)
+    still = np.array([0.0, 0.0, 0.1, 1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0])  # no rotation: the quaternion is kept
+    torso_step(still, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.eye(3), mass, inertia, inv, h)
+    np.testing.assert_array_equal(still[3:7], [1.0, 0, 0, 0])

@@ -77,8 +77,14 @@ def without_twist(per_leg: np.ndarray, lever: np.ndarray) -> np.ndarray:
     pitch moment about the CoM (for feet at ``lever`` (4, 3)), about (+, -, +, -) over the diagonals.
     Four normal forces carry three conditions, so the MPC's plan (with R ~ 0) leaves this one
     pattern to its solver's path; the legs' compliance decides it, not the plan."""
-    a = np.vstack([np.ones(4), lever[:, 0], lever[:, 1]])
-    twist = np.linalg.svd(a)[2][-1]  # unit vector spanning the null space of a
+    # The null space of the rows (1, x_i, y_i): their generalised cross product, whose component j is
+    # (-1)^j det of the columns without column j, twice the signed area of the other three feet's triangle.
+    x, y = lever[:, 0].tolist(), lever[:, 1].tolist()
+    null = np.empty(4)
+    for j in range(4):
+        a, b, c = (i for i in range(4) if i != j)
+        null[j] = (-1.0) ** j * ((x[b] - x[a]) * (y[c] - y[a]) - (x[c] - x[a]) * (y[b] - y[a]))
+    twist = null / np.sqrt(null @ null)
     return per_leg - (per_leg @ twist) * twist
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from numba import prange
 
 from ..actuation import tendon_angle_deg
-from ..body import euler_to_quat, quat_mul, quat_to_euler, quat_to_rot
+from ..body import euler_to_quat, quat_to_euler, quat_to_rot, torso_step
 from ..config import SlotConfig
 from ..errors import DivergenceError
 from ..jit import njit
@@ -121,7 +121,9 @@ def coupled_steps(
         v = torso[7:10]
         wb = torso[10:13]
         rot = quat_to_rot(torso[3:7])
-        ww = rot @ wb
+        ww0 = rot[0, 0] * wb[0] + rot[0, 1] * wb[1] + rot[0, 2] * wb[2]  # world angular velocity
+        ww1 = rot[1, 0] * wb[0] + rot[1, 1] * wb[1] + rot[1, 2] * wb[2]
+        ww2 = rot[2, 0] * wb[0] + rot[2, 1] * wb[1] + rot[2, 2] * wb[2]
         fx_t = f_ext[0]
         fy_t = f_ext[1]
         fz_t = f_ext[2] - torso_mass * gravity
@@ -143,9 +145,9 @@ def coupled_steps(
             cwx = p[0] + rcx
             cwy = p[1] + rcy
             cwz = p[2] + rcz
-            vcx = v[0] + ww[1] * rcz - ww[2] * rcy
-            vcy = v[1] + ww[2] * rcx - ww[0] * rcz
-            vcz = v[2] + ww[0] * rcy - ww[1] * rcx
+            vcx = v[0] + ww1 * rcz - ww2 * rcy
+            vcy = v[1] + ww2 * rcx - ww0 * rcz
+            vcz = v[2] + ww0 * rcy - ww1 * rcx
             # keep node world positions while the root moves in the plane
             ds = (cwx - prev_corner[i, 0]) * ux + (cwy - prev_corner[i, 1]) * uy
             for k in range(n_nodes):
@@ -158,7 +160,7 @@ def coupled_steps(
             root[2] = vcx * ux + vcy * uy
             root[3] = vcz
             root[4] = rest_theta0 + np.arctan2(dwz, horiz)
-            root[5] = ww[0] * uy - ww[1] * ux  # omega . (u x e_z)
+            root[5] = ww0 * uy - ww1 * ux  # omega . (u x e_z)
             # servo: first-order lag towards the command, at most as fast as its load allows
             servo[i] = servo_step(
                 servo[i], servo_cmd[i], h, servo_par[0], out[i, O_T] * pulley, servo_par[1], servo_par[2], servo_par[3]
@@ -239,8 +241,8 @@ def coupled_steps(
                 rfx = cwx + tip_s * ux - p[0]
                 rfy = cwy + tip_s * uy - p[1]
                 rfz = pos[i, n_nodes - 1, 1] - p[2]
-                vfx = v[0] + ww[1] * rfz - ww[2] * rfy
-                vfy = v[1] + ww[2] * rfx - ww[0] * rfz
+                vfx = v[0] + ww1 * rfz - ww2 * rfy
+                vfy = v[1] + ww2 * rfx - ww0 * rfz
                 vl = -vfx * uy + vfy * ux  # along lat = (-uy, ux, 0)
                 fl = -mu_lat * nrm * max(-1.0, min(1.0, vl / v_eps))
                 flx = -fl * uy
@@ -265,26 +267,9 @@ def coupled_steps(
             tx += rcy * fwz - rcz * fwy + mwx
             ty += rcz * fwx - rcx * fwz + mwy
             tz += rcx * fwy - rcy * fwx
-        f_tot = np.array([fx_t, fy_t, fz_t])
-        tau = np.array([tx, ty, tz])
         if hold_torso:
             continue
-        # torso: semi-implicit Euler, gyroscopic term kept
-        v_new = v + h * f_tot / torso_mass
-        tau_b = rot.T @ tau
-        iw = inertia @ wb
-        wb_new = wb + h * (inertia_inv @ (tau_b - np.cross(wb, iw)))
-        torso[0:3] = p + h * v_new
-        torso[7:10] = v_new
-        torso[10:13] = wb_new
-        half = 0.5 * h * wb_new
-        angle = np.sqrt(half @ half)
-        dq = np.array([np.cos(angle), 0.0, 0.0, 0.0])
-        if angle > 0.0:
-            sa = np.sin(angle) / angle
-            dq[1:4] = half * sa
-        qn = quat_mul(torso[3:7], dq)
-        torso[3:7] = qn / np.sqrt(qn @ qn)
+        torso_step(torso, fx_t, fy_t, fz_t, tx, ty, tz, rot, torso_mass, inertia, inertia_inv, h)
     return n_steps
 
 
