@@ -70,7 +70,7 @@ RUNS = {
     "legmap": ["experiment=legmap", "plant=cosserat"],
     # The gait library: CMA-ES on the soft plant; installed as slotexp/conf/library/default.yaml. Searched at
     # 1e-4 s, half the closed loop's default step: open loop, a gait's speed depends more on the step
-    # (the forward primitive: 30.9 / 31.6 / 32.1 mm/s at 2.5e-5 / 1e-4 / 2e-4 s).
+    # (the forward primitive: 30.9 / 31.6 / 32.1 mm/s at 2.5e-5 / 1e-4 / 2e-4 s with the exact implicit step).
     "gait_search_walk": ["experiment=gait_search", "plant=cosserat", "experiment.style=walk", "sim.dt=1e-4"],
     "gait_search_crawl": [
         "experiment=gait_search",
@@ -164,7 +164,8 @@ RUNS = {
         "gait=walk",
         "experiment.duration=12",
     ],
-    # Step-size convergence of the walk and creep check (the friction's regularisation halved).
+    # Step-size convergence of the walk (the exact implicit step, a fresh Jacobian every step, at a quarter
+    # and an eighth of the default step) and creep check (the friction's regularisation halved).
     "simulate_cosserat_walk_dt5e-5": [
         "experiment=simulate",
         "plant=cosserat",
@@ -172,6 +173,7 @@ RUNS = {
         f"gait.velocity=[{WALK},0]",
         "experiment.duration=20",
         "sim.dt=5e-5",
+        "plant.jacobian_age=1",
     ],
     "simulate_cosserat_walk_dt2.5e-5": [
         "experiment=simulate",
@@ -180,6 +182,7 @@ RUNS = {
         f"gait.velocity=[{WALK},0]",
         "experiment.duration=20",
         "sim.dt=2.5e-5",
+        "plant.jacobian_age=1",
     ],
     "simulate_cosserat_walk_slip_half": [
         "experiment=simulate",
