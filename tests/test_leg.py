@@ -155,47 +155,9 @@ def test_symplectic_energy_drift_without_damping():
     assert abs(energies[-20:].mean() - energies[:20].mean()) < 0.005 * e0
 
 
-def test_implicit_and_symplectic_agree_on_a_transient_with_tendon_and_contact():
-    # Smooth loading (the servo winds 4 mm of cable in over 0.1 s, the foot on the
-    # ground, friction on): both first-order schemes must follow the same path.
-    from slotexp.soft.loads import tendon_length
-
-    m = build_leg(LegConfig())
-    results = {}
-    for integrator, h in (("implicit", 1e-5), ("symplectic", 0.5 * stable_dt(m, 1e5))):
-        sim = LegSim(
-            m,
-            make_par(
-                gravity=9.81,
-                damping=20.0,
-                k_contact=1e5,
-                d_contact=10.0,
-                mu=0.1,
-                ground=1.0,
-                tendon_k=2e4,
-                tendon_offset=0.01,
-                tendon_max=140.0,
-                n_anchor=20,
-            ),
-        )
-        free0 = tendon_length(sim.pos, sim.theta, sim.root[4], sim.par)
-        traj = []
-        chunk = 1e-3
-        for k in range(200):
-            sim.free_length = free0 - 0.004 * min(1.0, k * chunk / 0.1)
-            sim.step(h, int(round(chunk / h)), integrator)
-            traj.append(np.r_[sim.tip, sim.out[3]])
-        results[integrator] = np.asarray(traj)
-    imp, sym = results["implicit"], results["symplectic"]
-    assert imp[-1, 2] > 1.0  # the tendon is loaded
-    np.testing.assert_allclose(imp[:, :2], sym[:, :2], atol=1e-4)  # tip within 0.1 mm all along
-    # the cable's own high-frequency ringing is damped by implicit Euler: compare its mean
-    assert imp[-50:, 2].mean() == pytest.approx(sym[-50:, 2].mean(), rel=0.02)
-
-
-def _loaded_transient(m, h, jacobian_age):
-    """The leg of the transient test above at step ``h``: tip (s, z) and tension every 1 ms, and how
-    many Jacobians the implicit step factored."""
+def _loaded_transient(m, h, integrator="implicit", jacobian_age=1):
+    """Smooth loading (the servo winds 4 mm of cable in over 0.1 s, the foot on the ground, friction
+    on) at step ``h``: tip (s, z) and tension every 1 ms, and how many Jacobians the implicit step factored."""
     from slotexp.soft.loads import tendon_length
 
     sim = LegSim(
@@ -218,17 +180,28 @@ def _loaded_transient(m, h, jacobian_age):
     traj = []
     for k in range(200):
         sim.free_length = free0 - 0.004 * min(1.0, k * 1e-3 / 0.1)
-        sim.step(h, int(round(1e-3 / h)), "implicit")
+        sim.step(h, int(round(1e-3 / h)), integrator)
         traj.append(np.r_[sim.tip, sim.out[3]])
     return np.asarray(traj), sim.jacobian[3][m.n_nodes + 4]
+
+
+def test_implicit_and_symplectic_agree_on_a_transient_with_tendon_and_contact():
+    # both first-order schemes must follow the same path
+    m = build_leg(LegConfig())
+    imp, _ = _loaded_transient(m, 1e-5)
+    sym, _ = _loaded_transient(m, 0.5 * stable_dt(m, 1e5), "symplectic")
+    assert imp[-1, 2] > 1.0  # the tendon is loaded
+    np.testing.assert_allclose(imp[:, :2], sym[:, :2], atol=1e-4)  # tip within 0.1 mm all along
+    # the cable's own high-frequency ringing is damped by implicit Euler: compare its mean
+    assert imp[-50:, 2].mean() == pytest.approx(sym[-50:, 2].mean(), rel=0.02)
 
 
 def test_a_reused_jacobian_follows_the_exact_implicit_step():
     # The W-method (factored Jacobian kept up to 20 steps) against a fresh Jacobian every step, on the
     # loaded transient with tendon, contact and friction: the same path, at a fraction of the factorisations.
     m = build_leg(LegConfig())
-    exact, n_exact = _loaded_transient(m, 1e-4, 1)
-    reused, n_reused = _loaded_transient(m, 1e-4, 20)
+    exact, n_exact = _loaded_transient(m, 1e-4)
+    reused, n_reused = _loaded_transient(m, 1e-4, jacobian_age=20)
     assert n_exact == 2000  # one per step
     assert 100 <= n_reused < 400  # at least one per 20 steps; contact and tendon changes add a few
     np.testing.assert_allclose(reused[:, :2], exact[:, :2], atol=2e-5)  # tip within 0.02 mm all along

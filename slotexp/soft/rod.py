@@ -274,43 +274,21 @@ def banded_factor(band):
     and each pivot's reciprocal in its place on the diagonal (the solve multiplies by it).
 
     The implicit step's matrix M - h^2 K - h C is dominated by the lumped mass
-    diagonal, so elimination without pivoting is stable. The elimination of a full-width
-    column is written out (fixed offsets, no branches): it is most of the implicit step's
-    cost, and numba keeps the row updates in registers that way.
+    diagonal, so elimination without pivoting is stable. A full-width column is
+    eliminated with fixed offsets and its pivot row in registers (not re-read from
+    ``band``, which the updates write): it is most of an exact implicit step's cost.
     """
     n = band.shape[0]
     for k in range(n):
         inv = 1.0 / band[k, 4]
         band[k, 4] = inv
-        if k + 4 < n:
-            u1 = band[k, 5]
-            u2 = band[k, 6]
-            u3 = band[k, 7]
-            u4 = band[k, 8]
-            f = band[k + 1, 3] * inv
-            band[k + 1, 3] = f
-            band[k + 1, 4] -= f * u1
-            band[k + 1, 5] -= f * u2
-            band[k + 1, 6] -= f * u3
-            band[k + 1, 7] -= f * u4
-            f = band[k + 2, 2] * inv
-            band[k + 2, 2] = f
-            band[k + 2, 3] -= f * u1
-            band[k + 2, 4] -= f * u2
-            band[k + 2, 5] -= f * u3
-            band[k + 2, 6] -= f * u4
-            f = band[k + 3, 1] * inv
-            band[k + 3, 1] = f
-            band[k + 3, 2] -= f * u1
-            band[k + 3, 3] -= f * u2
-            band[k + 3, 4] -= f * u3
-            band[k + 3, 5] -= f * u4
-            f = band[k + 4, 0] * inv
-            band[k + 4, 0] = f
-            band[k + 4, 1] -= f * u1
-            band[k + 4, 2] -= f * u2
-            band[k + 4, 3] -= f * u3
-            band[k + 4, 4] -= f * u4
+        if k + 4 < n:  # a full-width column: fixed offsets, the pivot row held in registers
+            u = (band[k, 5], band[k, 6], band[k, 7], band[k, 8])
+            for d in range(1, 5):
+                f = band[k + d, 4 - d] * inv
+                band[k + d, 4 - d] = f
+                for e in range(1, 5):
+                    band[k + d, 4 + e - d] -= f * u[e - 1]
         else:  # the last four columns
             for i in range(k + 1, n):
                 f = band[i, 4 + k - i] * inv
