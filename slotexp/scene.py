@@ -82,14 +82,12 @@ def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCAL
     return tuple(out)
 
 
-def straight_legs(
-    corners_body: np.ndarray, feet_body: np.ndarray, position: np.ndarray, quaternion_wxyz: np.ndarray
-) -> np.ndarray:
-    """Legs drawn as straight segments (4, 2, 3) from each torso corner to its foot (both body frame)
-    at the torso's pose, where no leg shape is known (the ideal plant, and the robot's nominal feet)."""
+def straight_legs(segments_body: np.ndarray, position: np.ndarray, quaternion_wxyz: np.ndarray) -> np.ndarray:
+    """Legs drawn as straight segments (n, 2, 3), ``segments_body`` (n, 2, 3) (each leg's torso corner and
+    foot, body frame) at the torso's pose, where no leg shape is known (the ideal plant, and the robot's
+    nominal feet)."""
     rot = quat_to_rot(np.asarray(quaternion_wxyz, dtype=float))
-    p = np.asarray(position, dtype=float)
-    return np.stack([p + np.asarray(corners_body) @ rot.T, p + np.asarray(feet_body) @ rot.T], axis=1)
+    return segments_body @ rot.T + position  # one product and one sum: this runs every logged step
 
 
 class _Path:
