@@ -102,17 +102,29 @@ class _Path:
     def __init__(self, spacing: float, max_points: int) -> None:
         self._spacing = spacing
         self._max = max_points
-        self._kept: list[list[float]] = []
-        self._points = np.empty((0, 3))
+        self._last: list[float] | None = None
+        self._buffer = np.empty((max_points + 1, 3))  # the kept points are its first rows
+        self._points = self._buffer[:0]
 
     def add(self, point: Sequence[float]) -> np.ndarray:
-        """Keep ``point`` if it is ``spacing`` from the last kept one; the kept points (k, 3)."""
+        """Keep ``point`` if it is ``spacing`` from the last kept one; the kept points (k, 3).
+
+        The kept points are a view of a buffer that a new point extends past the end of every
+        earlier view, so a path once returned never changes; thinning starts a new buffer."""
         p = [float(v) for v in point]
-        if all(math.isfinite(v) for v in p) and (not self._kept or math.dist(p, self._kept[-1]) >= self._spacing):
-            self._kept.append(p)
-            if len(self._kept) > self._max:  # every other point, the newest always kept
-                self._kept = self._kept[-1::-2][::-1]
-            self._points = np.array(self._kept)
+        if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
+            return self._points
+        if self._last is not None and math.dist(p, self._last) < self._spacing:
+            return self._points
+        n = len(self._points)
+        self._buffer[n] = p
+        self._last = p
+        if n + 1 > self._max:  # every other point, the newest always kept
+            kept = self._buffer[n::-2][::-1]
+            self._buffer = np.empty_like(self._buffer)
+            self._buffer[: len(kept)] = kept
+            n = len(kept) - 1
+        self._points = self._buffer[: n + 1]
         return self._points
 
 
