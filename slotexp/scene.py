@@ -30,16 +30,6 @@ PATH_MAX_POINTS = 500  # beyond this a path keeps every other point: a step cost
 
 
 @dataclass(frozen=True)
-class Arrow:
-    """An arrow with its tail at ``tail`` (3,), ``length`` metres long, along the direction that
-    ``orientation_xyzw`` turns +x (an arrow's axis at identity) onto."""
-
-    tail: np.ndarray
-    orientation_xyzw: np.ndarray
-    length: float
-
-
-@dataclass(frozen=True)
 class SceneFrame:
     """One step of the 3D scene, world frame, metres."""
 
@@ -50,36 +40,39 @@ class SceneFrame:
     leg_names: tuple[str, ...]
     legs: np.ndarray  # (4, N, 3) centreline nodes, root to foot
     forces: np.ndarray  # (4, 3) applied ground-reaction forces, N
-    arrows: tuple[Arrow, ...]  # one per leg, scaled forces at the feet
+    arrows: np.ndarray  # (4, 9) per foot: tail (the foot), rotation x, y, z, w from +x onto the force, shaft, head
     reference_path: np.ndarray  # (M, 3)
     actual_path: np.ndarray  # (K, 3)
     feet: np.ndarray  # (4, 3) where the forces act
     footholds: np.ndarray | None = None  # (4, 3) where the controller plans to put each foot; None: it plans none
 
 
-def rotation_from_x(direction: Sequence[float]) -> np.ndarray:
+def rotation_from_x(direction: Sequence[float]) -> tuple[float, float, float, float]:
     """Shortest rotation (x, y, z, w) from the +x axis to ``direction``; identity for a zero or non-finite
     vector, half a turn about z for -x. Plain floats: for four arrows a step, numpy's per-call cost dominates."""
-    dx, dy, dz = (float(v) for v in direction)
+    dx, dy, dz = float(direction[0]), float(direction[1]), float(direction[2])
     n = math.sqrt(dx * dx + dy * dy + dz * dz)
     if not (n > 0.0 and math.isfinite(n)):
-        return np.array([0.0, 0.0, 0.0, 1.0])
+        return (0.0, 0.0, 0.0, 1.0)
     dx, dy, dz = dx / n, dy / n, dz / n
     if dx < -1.0 + 1e-12:
-        return np.array([0.0, 0.0, 1.0, 0.0])
+        return (0.0, 0.0, 1.0, 0.0)
     w = 1.0 + dx  # (x cross d, 1 + x . d), normalised
     m = math.sqrt(dz * dz + dy * dy + w * w)
-    return np.array([0.0, -dz / m, dy / m, w / m])
+    return (0.0, -dz / m, dy / m, w / m)
 
 
-def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCALE_M_PER_N) -> tuple[Arrow, ...]:
-    """One arrow per foot: tail at the foot, along the force, ``scale`` metres per newton (zero length for
-    a zero or non-finite force)."""
-    out = []
-    for tail, f in zip(np.asarray(feet, dtype=float), np.asarray(forces, dtype=float).tolist()):
+def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCALE_M_PER_N) -> np.ndarray:
+    """Each foot's force as an arrow (n, 9): the tail (the foot), the rotation x, y, z, w from +x onto the
+    force, then the shaft's and the head's length, together ``scale`` metres per newton (zero for a zero or
+    non-finite force)."""
+    rows = []
+    for tail, f in zip(np.asarray(feet, dtype=float).tolist(), np.asarray(forces, dtype=float).tolist()):
         magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
-        out.append(Arrow(tail, rotation_from_x(f), magnitude * scale if math.isfinite(magnitude) else 0.0))
-    return tuple(out)
+        length = magnitude * scale if math.isfinite(magnitude) else 0.0
+        head = ARROW_HEAD_FRACTION * length
+        rows.append((*tail, *rotation_from_x(f), length - head, head))
+    return np.array(rows).reshape(-1, 9)
 
 
 def straight_legs(segments_body: np.ndarray, position: np.ndarray, quaternion_wxyz: np.ndarray) -> np.ndarray:
@@ -157,6 +150,7 @@ class SceneTrack:
         point (the foot), and the controller's planned ``footholds`` (4, 3), if it plans any."""
         legs = np.asarray(legs, dtype=float)
         feet = legs[:, -1, :]
+        forces = np.asarray(forces, dtype=float)
         return SceneFrame(
             t=float(t),
             position=np.asarray(position, dtype=float),
@@ -164,7 +158,7 @@ class SceneTrack:
             torso_size=self.torso_size,
             leg_names=self.leg_names,
             legs=legs,
-            forces=np.asarray(forces, dtype=float),
+            forces=forces,
             arrows=force_arrows(feet, forces),
             reference_path=self._reference.add(reference_position),
             actual_path=self._actual.add(position),
@@ -174,7 +168,6 @@ class SceneTrack:
 
 
 __all__ = [
-    "Arrow",
     "SceneFrame",
     "SceneTrack",
     "FORCE_SCALE_M_PER_N",
