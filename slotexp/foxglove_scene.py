@@ -189,15 +189,6 @@ def _entity(stamp: bytes, body: bytes | memoryview) -> list[bytes | memoryview]:
     return [_ENTITY_KEY, _varint(len(stamp) + len(body)), stamp, body]
 
 
-def _point_rows(points: np.ndarray) -> bytes:
-    """LinePrimitive.points (field 5) through ``points`` (k, 3)."""
-    rows = np.empty((len(points), len(_POINT_ROW)), dtype=np.uint8)
-    rows[:] = _POINT_ROW
-    xyz = np.ndarray((len(points), 3), dtype="<f8", buffer=rows, offset=_POINT.slots[0], strides=(len(_POINT_ROW), 9))
-    xyz[...] = points
-    return rows.tobytes()
-
-
 # --------------------------------------------------------------------------- the scene
 
 
@@ -253,18 +244,32 @@ class _Layout:
 
 class _PathEntity:
     """A path's entity, rebuilt only when the path gained a point (:class:`slotexp.scene.SceneTrack`
-    returns the same array until then): it keeps the timestamp of the step it changed."""
+    returns the same array until then): it keeps the timestamp of the step it changed. On a walk
+    that is every other step, so the points' bytes are written into rows kept from one rebuild to
+    the next (their keys and lengths already in place)."""
 
     def __init__(self, key: str, color: RGBA) -> None:
         self._head = _entity_body(f"path/{key}").data + _key(11, _LEN)
         self._thickness = _double(3, LINE_THICKNESS_M).data
         self._color = _nested(6, _doubles(color)).data
         self._source: np.ndarray | None = None
+        self._rows = np.empty((0, len(_POINT_ROW)), dtype=np.uint8)
+        self._xyz = np.empty((0, 3))
         self.parts: list[bytes | memoryview] = []
+
+    def _points(self, path: np.ndarray) -> bytes:
+        """LinePrimitive.points (field 5) through ``path`` (k, 3)."""
+        n = len(path)
+        if n > len(self._rows):
+            self._rows = np.tile(_POINT_ROW, (max(n, 2 * len(self._rows)), 1))
+            shape, strides = (len(self._rows), 3), (len(_POINT_ROW), 9)
+            self._xyz = np.ndarray(shape, dtype="<f8", buffer=self._rows, offset=_POINT.slots[0], strides=strides)
+        self._xyz[:n] = path
+        return self._rows[:n].tobytes()
 
     def update(self, path: np.ndarray, stamp: bytes) -> list[bytes | memoryview]:
         if path is not self._source:
-            points = _point_rows(path)
+            points = self._points(path)
             line = _varint(len(self._thickness) + len(points) + len(self._color))
             body = b"".join((self._head, line, self._thickness, points, self._color))
             self.parts = _entity(stamp, body)
@@ -288,9 +293,9 @@ class SceneEncoder:
             layout = self._layout = _Layout(*key)
         q = frame.quaternion_wxyz
         pose = (frame.position, q[1:4], q[:1])  # x, y, z, then the quaternion as x, y, z, w
-        holds = () if frame.footholds is None else (frame.footholds.ravel(),)
-        values = (*pose, frame.torso_size, frame.legs.ravel(), frame.arrows.ravel(), frame.feet.ravel(), *holds, *pose)
-        layout.fill(np.concatenate(values, dtype="<f8"))
+        holds = () if frame.footholds is None else (frame.footholds,)
+        values = (*pose, frame.torso_size, frame.legs, frame.arrows, frame.feet, *holds, *pose)
+        layout.fill(np.concatenate(values, axis=None, dtype="<f8"))  # each array flattened, row by row
         stamp = _stamp_field(frame.t)
         parts = [*layout.entities(stamp), *self._paths[0].update(frame.reference_path, stamp)]
         parts += self._paths[1].update(frame.actual_path, stamp)

@@ -66,13 +66,15 @@ def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCAL
     """Each foot's force as an arrow (n, 9): the tail (the foot), the rotation x, y, z, w from +x onto the
     force, then the shaft's and the head's length, together ``scale`` metres per newton (zero for a zero or
     non-finite force)."""
-    rows = []
+    flat: list[float] = []
     for tail, f in zip(np.asarray(feet, dtype=float).tolist(), np.asarray(forces, dtype=float).tolist()):
         magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
         length = magnitude * scale if math.isfinite(magnitude) else 0.0
         head = ARROW_HEAD_FRACTION * length
-        rows.append((*tail, *rotation_from_x(f), length - head, head))
-    return np.array(rows).reshape(-1, 9)
+        flat += tail
+        flat += rotation_from_x(f)
+        flat += (length - head, head)
+    return np.array(flat).reshape(-1, 9)
 
 
 def straight_legs(segments_body: np.ndarray, position: np.ndarray, quaternion_wxyz: np.ndarray) -> np.ndarray:

@@ -156,13 +156,15 @@ def test_paths_keep_a_point_per_spacing_and_arrows_point_along_the_force() -> No
 
 @pytest.mark.parametrize(("n_nodes", "footholds"), [(31, False), (2, False), (4, True)])
 def test_the_encoders_bytes_decode_to_the_message_the_sdk_encodes(n_nodes: int, footholds: bool) -> None:
-    """The scene's own wire bytes against the SDK's objects and encode(), step after step: paths that grow
-    and stay, zero, opposite and huge forces, timestamps with no seconds or no nanoseconds, a zero node."""
+    """The scene's own wire bytes against the SDK's objects and encode(), step after step: paths that grow,
+    stay and are thinned, zero, opposite and huge forces, timestamps with no seconds or no nanoseconds, a
+    zero node."""
     scene_cls = message_class("foxglove.SceneUpdate", schemas()[SCENE_TOPIC].data)
     tf_cls = message_class("foxglove.FrameTransforms", schemas()[TRANSFORMS_TOPIC].data)
     rng = np.random.default_rng(7)
-    track = SceneTrack(LEGS, [0.1255, 0.0855, 0.034], spacing=0.004)
+    track = SceneTrack(LEGS, [0.1255, 0.0855, 0.034], spacing=0.004, max_points=3)  # thinned at a 4th point
     encoder = SceneEncoder()
+    lengths = []
     changed: dict[str, float] = {}
     last: dict[str, np.ndarray] = {}
     for k, t in enumerate([0.0, 0.4, 1.0, 1.0333333333, 2.5, 7.0, 12345.678901, 12345.7]):
@@ -177,12 +179,13 @@ def test_the_encoders_bytes_decode_to_the_message_the_sdk_encodes(n_nodes: int, 
         for key, path in (("reference", frame.reference_path), ("actual", frame.actual_path)):
             if last.get(key) is not path:
                 last[key], changed[key] = path, t
+        lengths.append(len(frame.actual_path))
         (tf_topic, tf_bytes), (scene_topic, scene_bytes) = encoder.messages(frame)
         assert (tf_topic, scene_topic) == (TRANSFORMS_TOPIC, SCENE_TOPIC)
         expected = scene_cls.FromString(sdk_scene.scene_update(frame, changed).encode())
         assert scene_cls.FromString(scene_bytes) == expected, k
         assert tf_cls.FromString(tf_bytes) == tf_cls.FromString(sdk_scene.frame_transforms(frame).encode()), k
-    assert len(frame.actual_path) > 1 and changed["reference"] < t  # the paths grew, and one stood still
+    assert 3 in lengths and lengths[-1] < 3 and changed["reference"] < t  # grew, was thinned, stood still
 
 
 def _frames(stop: threading.Event, view: LiveView, rec: Recorder | None = None) -> None:
