@@ -19,7 +19,7 @@ from typing import Any
 import foxglove
 
 from .errors import ConfigError
-from .foxglove_scene import SCENE_TOPIC, TRANSFORMS_TOPIC, SceneEncoder
+from .foxglove_scene import SCENE_TOPIC, TRANSFORMS_TOPIC, SceneEncoder, schemas
 from .record import (
     _RESERVED_FIELD,
     POSE_TOPIC,
@@ -91,25 +91,23 @@ class LiveView:
             if chan.has_sinks():
                 chan.log(json.dumps(payload, separators=(",", ":")).encode(), log_time=_time_ns(t))
 
-    def write_message(self, topic: str, t: float, message: Any) -> None:
-        """Publish a ``foxglove-sdk`` message, protobuf-encoded as in the log."""
+    def write_encoded(self, topic: str, t: float, schema: foxglove.Schema, data: bytes) -> None:
+        """Publish a protobuf-encoded message (the scene, as in the log) with its ``foxglove.Schema``."""
         chan = self._channels.get(topic)
         if chan is None:
-            chan = foxglove.Channel(
-                topic, schema=message.get_schema(), message_encoding="protobuf", context=self._context
-            )
+            chan = foxglove.Channel(topic, schema=schema, message_encoding="protobuf", context=self._context)
             self._channels[topic] = chan
         if chan.has_sinks():
-            chan.log(message.encode(), log_time=_time_ns(t))
+            chan.log(data, log_time=_time_ns(t))
 
     def write_scene(self, frame: SceneFrame) -> None:
         if self._scene is None:
             self._scene = SceneEncoder()
         scene = [self._channels.get(topic) for topic in (SCENE_TOPIC, TRANSFORMS_TOPIC)]
         if all(c is not None and not c.has_sinks() for c in scene):
-            return  # advertised, nobody subscribed: skip building the messages
-        for topic, message in self._scene.messages(frame):
-            self.write_message(topic, frame.t, message)
+            return  # advertised, nobody subscribed: skip encoding the messages
+        for topic, data in self._scene.messages(frame):
+            self.write_encoded(topic, frame.t, schemas()[topic], data)
 
     def close(self) -> None:
         """Stop the server (clients are disconnected) and close the channels."""

@@ -30,16 +30,6 @@ PATH_MAX_POINTS = 500  # beyond this a path keeps every other point: a step cost
 
 
 @dataclass(frozen=True)
-class Arrow:
-    """An arrow with its tail at ``tail`` (3,), ``length`` metres long, along the direction that
-    ``orientation_xyzw`` turns +x (an arrow's axis at identity) onto."""
-
-    tail: np.ndarray
-    orientation_xyzw: np.ndarray
-    length: float
-
-
-@dataclass(frozen=True)
 class SceneFrame:
     """One step of the 3D scene, world frame, metres."""
 
@@ -50,46 +40,49 @@ class SceneFrame:
     leg_names: tuple[str, ...]
     legs: np.ndarray  # (4, N, 3) centreline nodes, root to foot
     forces: np.ndarray  # (4, 3) applied ground-reaction forces, N
-    arrows: tuple[Arrow, ...]  # one per leg, scaled forces at the feet
+    arrows: np.ndarray  # (4, 9) per foot: tail (the foot), rotation x, y, z, w from +x onto the force, shaft, head
     reference_path: np.ndarray  # (M, 3)
     actual_path: np.ndarray  # (K, 3)
     feet: np.ndarray  # (4, 3) where the forces act
     footholds: np.ndarray | None = None  # (4, 3) where the controller plans to put each foot; None: it plans none
 
 
-def rotation_from_x(direction: Sequence[float]) -> np.ndarray:
+def rotation_from_x(direction: Sequence[float]) -> tuple[float, float, float, float]:
     """Shortest rotation (x, y, z, w) from the +x axis to ``direction``; identity for a zero or non-finite
     vector, half a turn about z for -x. Plain floats: for four arrows a step, numpy's per-call cost dominates."""
-    dx, dy, dz = (float(v) for v in direction)
+    dx, dy, dz = float(direction[0]), float(direction[1]), float(direction[2])
     n = math.sqrt(dx * dx + dy * dy + dz * dz)
     if not (n > 0.0 and math.isfinite(n)):
-        return np.array([0.0, 0.0, 0.0, 1.0])
+        return (0.0, 0.0, 0.0, 1.0)
     dx, dy, dz = dx / n, dy / n, dz / n
     if dx < -1.0 + 1e-12:
-        return np.array([0.0, 0.0, 1.0, 0.0])
+        return (0.0, 0.0, 1.0, 0.0)
     w = 1.0 + dx  # (x cross d, 1 + x . d), normalised
     m = math.sqrt(dz * dz + dy * dy + w * w)
-    return np.array([0.0, -dz / m, dy / m, w / m])
+    return (0.0, -dz / m, dy / m, w / m)
 
 
-def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCALE_M_PER_N) -> tuple[Arrow, ...]:
-    """One arrow per foot: tail at the foot, along the force, ``scale`` metres per newton (zero length for
-    a zero or non-finite force)."""
-    out = []
-    for tail, f in zip(np.asarray(feet, dtype=float), np.asarray(forces, dtype=float).tolist()):
+def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCALE_M_PER_N) -> np.ndarray:
+    """Each foot's force as an arrow (n, 9): the tail (the foot), the rotation x, y, z, w from +x onto the
+    force, then the shaft's and the head's length, together ``scale`` metres per newton (zero for a zero or
+    non-finite force)."""
+    flat: list[float] = []
+    for tail, f in zip(np.asarray(feet, dtype=float).tolist(), np.asarray(forces, dtype=float).tolist()):
         magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
-        out.append(Arrow(tail, rotation_from_x(f), magnitude * scale if math.isfinite(magnitude) else 0.0))
-    return tuple(out)
+        length = magnitude * scale if math.isfinite(magnitude) else 0.0
+        head = ARROW_HEAD_FRACTION * length
+        flat += tail
+        flat += rotation_from_x(f)
+        flat += (length - head, head)
+    return np.array(flat).reshape(-1, 9)
 
 
-def straight_legs(
-    corners_body: np.ndarray, feet_body: np.ndarray, position: np.ndarray, quaternion_wxyz: np.ndarray
-) -> np.ndarray:
-    """Legs drawn as straight segments (4, 2, 3) from each torso corner to its foot (both body frame)
-    at the torso's pose, where no leg shape is known (the ideal plant, and the robot's nominal feet)."""
+def straight_legs(segments_body: np.ndarray, position: np.ndarray, quaternion_wxyz: np.ndarray) -> np.ndarray:
+    """Legs drawn as straight segments (n, 2, 3), ``segments_body`` (n, 2, 3) (each leg's torso corner and
+    foot, body frame) at the torso's pose, where no leg shape is known (the ideal plant, and the robot's
+    nominal feet)."""
     rot = quat_to_rot(np.asarray(quaternion_wxyz, dtype=float))
-    p = np.asarray(position, dtype=float)
-    return np.stack([p + np.asarray(corners_body) @ rot.T, p + np.asarray(feet_body) @ rot.T], axis=1)
+    return segments_body @ rot.T + position  # one product and one sum: this runs every logged step
 
 
 class _Path:
@@ -104,17 +97,29 @@ class _Path:
     def __init__(self, spacing: float, max_points: int) -> None:
         self._spacing = spacing
         self._max = max_points
-        self._kept: list[list[float]] = []
-        self._points = np.empty((0, 3))
+        self._last: list[float] | None = None
+        self._buffer = np.empty((max_points + 1, 3))  # the kept points are its first rows
+        self._points = self._buffer[:0]
 
     def add(self, point: Sequence[float]) -> np.ndarray:
-        """Keep ``point`` if it is ``spacing`` from the last kept one; the kept points (k, 3)."""
+        """Keep ``point`` if it is ``spacing`` from the last kept one; the kept points (k, 3).
+
+        The kept points are a view of a buffer that a new point extends past the end of every
+        earlier view, so a path once returned never changes; thinning starts a new buffer."""
         p = [float(v) for v in point]
-        if all(math.isfinite(v) for v in p) and (not self._kept or math.dist(p, self._kept[-1]) >= self._spacing):
-            self._kept.append(p)
-            if len(self._kept) > self._max:  # every other point, the newest always kept
-                self._kept = self._kept[-1::-2][::-1]
-            self._points = np.array(self._kept)
+        if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
+            return self._points
+        if self._last is not None and math.dist(p, self._last) < self._spacing:
+            return self._points
+        n = len(self._points)
+        self._buffer[n] = p
+        self._last = p
+        if n + 1 > self._max:  # every other point, the newest always kept
+            kept = self._buffer[n::-2][::-1]
+            self._buffer = np.empty_like(self._buffer)
+            self._buffer[: len(kept)] = kept
+            n = len(kept) - 1
+        self._points = self._buffer[: n + 1]
         return self._points
 
 
@@ -147,6 +152,7 @@ class SceneTrack:
         point (the foot), and the controller's planned ``footholds`` (4, 3), if it plans any."""
         legs = np.asarray(legs, dtype=float)
         feet = legs[:, -1, :]
+        forces = np.asarray(forces, dtype=float)
         return SceneFrame(
             t=float(t),
             position=np.asarray(position, dtype=float),
@@ -154,7 +160,7 @@ class SceneTrack:
             torso_size=self.torso_size,
             leg_names=self.leg_names,
             legs=legs,
-            forces=np.asarray(forces, dtype=float),
+            forces=forces,
             arrows=force_arrows(feet, forces),
             reference_path=self._reference.add(reference_position),
             actual_path=self._actual.add(position),
@@ -164,7 +170,6 @@ class SceneTrack:
 
 
 __all__ = [
-    "Arrow",
     "SceneFrame",
     "SceneTrack",
     "FORCE_SCALE_M_PER_N",

@@ -660,7 +660,7 @@ def test_figures_and_summarize_say_which_logs_are_truncated(tmp_path: Path) -> N
         "run",
         "-m",
         "experiment=simulate",
-        "experiment.duration=1",
+        "experiment.duration=2",  # long enough that half the log holds a whole chunk (about 0.6 s)
         "mpc.horizon=5,6",
         f"hydra.sweep.dir={sweep}",
         cwd=tmp_path,

@@ -20,11 +20,12 @@ from mcap.reader import make_reader
 from websockets.sync.client import connect
 
 from slotexp.errors import ConfigError
-from slotexp.foxglove_scene import SCENE_TOPIC, TRANSFORMS_TOPIC
+from slotexp.foxglove_scene import SCENE_TOPIC, TRANSFORMS_TOPIC, SceneEncoder, schemas
 from slotexp.live import LiveView
 from slotexp.record import Recorder, read_log
 from slotexp.scene import FORCE_SCALE_M_PER_N, SceneTrack, rotation_from_x
 from slotexp.simulation import Tee, run_closed_loop
+from tests import sdk_scene
 from tests.helpers import load
 
 LEGS = ("FL", "RL", "RR", "FR")
@@ -142,13 +143,49 @@ def test_paths_keep_a_point_per_spacing_and_arrows_point_along_the_force() -> No
         paths.append(frame.actual_path)
     assert frame.actual_path[:, 0] == pytest.approx([0.0, 0.01, 0.02, 0.03])
     assert paths[31] is paths[39] and paths[30] is not paths[29]  # unchanged between kept points: the same array
+    early = [p.copy() for p in paths]
     for k in range(40, 200):
         frame = track.frame(k / 30, [k * 1e-3, 0, 0.04], [1, 0, 0, 0], [0, 0, 0], legs, zero)
+    assert all(np.array_equal(p, q) for p, q in zip(paths, early))  # a path given out never changes after
     assert len(frame.actual_path) <= 8 and frame.actual_path[-1, 0] == pytest.approx(0.19)
     assert frame.actual_path[0, 0] < 0.05 and np.all(np.diff(frame.actual_path[:, 0]) > 0)
     rng = np.random.default_rng(1)
     for d in [*rng.normal(size=(20, 3)), np.array([-1.0, 0, 0]), np.array([1.0, 0, 0])]:
         assert rotate(rotation_from_x(d), np.array([1.0, 0, 0])) == pytest.approx(d / np.linalg.norm(d))
+
+
+@pytest.mark.parametrize(("n_nodes", "footholds"), [(31, False), (2, False), (4, True)])
+def test_the_encoders_bytes_decode_to_the_message_the_sdk_encodes(n_nodes: int, footholds: bool) -> None:
+    """The scene's own wire bytes against the SDK's objects and encode(), step after step: paths that grow,
+    stay and are thinned, zero, opposite and huge forces, timestamps with no seconds or no nanoseconds, a
+    zero node."""
+    scene_cls = message_class("foxglove.SceneUpdate", schemas()[SCENE_TOPIC].data)
+    tf_cls = message_class("foxglove.FrameTransforms", schemas()[TRANSFORMS_TOPIC].data)
+    rng = np.random.default_rng(7)
+    track = SceneTrack(LEGS, [0.1255, 0.0855, 0.034], spacing=0.004, max_points=3)  # thinned at a 4th point
+    encoder = SceneEncoder()
+    lengths = []
+    changed: dict[str, float] = {}
+    last: dict[str, np.ndarray] = {}
+    for k, t in enumerate([0.0, 0.4, 1.0, 1.0333333333, 2.5, 7.0, 12345.678901, 12345.7]):
+        legs = rng.normal(scale=0.05, size=(4, n_nodes, 3))
+        legs[0, 0] = 0.0
+        forces = rng.normal(size=(4, 3)) + [0.0, 0.0, 5.0]
+        forces[k % 4] = [[0.0, 0.0, 0.0], [-3.0, 0.0, 0.0], [1e6, -2e6, 3.0], [0.0, 0.0, -1.0]][k % 4]
+        position = [k * 3e-3, -k * 1e-3, 0.04]
+        q = rng.normal(size=4)
+        planned = rng.normal(scale=0.1, size=(4, 3)) if footholds else None
+        frame = track.frame(t, position, q / np.linalg.norm(q), [k * 2e-3, 0.0, 0.04], legs, forces, planned)
+        for key, path in (("reference", frame.reference_path), ("actual", frame.actual_path)):
+            if last.get(key) is not path:
+                last[key], changed[key] = path, t
+        lengths.append(len(frame.actual_path))
+        (tf_topic, tf_bytes), (scene_topic, scene_bytes) = encoder.messages(frame)
+        assert (tf_topic, scene_topic) == (TRANSFORMS_TOPIC, SCENE_TOPIC)
+        expected = scene_cls.FromString(sdk_scene.scene_update(frame, changed).encode())
+        assert scene_cls.FromString(scene_bytes) == expected, k
+        assert tf_cls.FromString(tf_bytes) == tf_cls.FromString(sdk_scene.frame_transforms(frame).encode()), k
+    assert 3 in lengths and lengths[-1] < 3 and changed["reference"] < t  # grew, was thinned, stood still
 
 
 def _frames(stop: threading.Event, view: LiveView, rec: Recorder | None = None) -> None:

@@ -67,7 +67,7 @@ def nominal_feet(robot: RobotModel, position: np.ndarray, quaternion: np.ndarray
 def nominal_legs(robot: RobotModel, position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
     """Straight legs (4, 2, 3) from the torso corners to the nominal feet at the measured pose: the 3D view's
     legs on the robot, whose leg shapes are not measured."""
-    return straight_legs(robot.corners_body, robot.feet_body, position, quaternion)
+    return straight_legs(np.stack((robot.corners_body, robot.feet_body), axis=1), position, quaternion)
 
 
 def run_loop(

@@ -33,7 +33,7 @@ class IdealPlant:
         self._inertia = np.ascontiguousarray(robot.inertia_body)
         self._inertia_inv = np.linalg.inv(self._inertia)
         self._points = np.ascontiguousarray(robot.feet_body)
-        self._corners = np.asarray(robot.corners_body)
+        self._segments = np.stack((robot.corners_body, robot.feet_body), axis=1)  # each leg: corner, foot
         q = euler_to_quat(*x0[0:3])
         rot = quat_to_rot(q)
         self._s = np.concatenate([x0[3:6], q, x0[9:12], rot.T @ x0[6:9]])
@@ -58,7 +58,7 @@ class IdealPlant:
 
     def legs(self) -> np.ndarray:
         """Straight segments from each torso corner to its force point: the ideal plant has no legs."""
-        return straight_legs(self._corners, self._points, self._s[0:3], self._s[3:7])
+        return straight_legs(self._segments, self._s[0:3], self._s[3:7])
 
     def telemetry(self) -> dict[str, dict]:
         return {}
