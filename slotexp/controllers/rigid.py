@@ -107,7 +107,7 @@ class RigidController(MpcController):
         # positions on the desired path (not from wherever the robot is): Q's position weights then hold the
         # robot to its path, so speed errors and pushes do not accumulate into drift
         x_ref = reference(x, t, cfg.gait, self.period, horizon, path_origin=self.origin)
-        arms = np.where(stance[:, None], feet, self.targets)
+        arms = np.where(stance[:, None], feet, self.targets) - x[3:6]
         forces, solution, violations = self.solve(x, x_ref, arms, plan)
         self.gait.roll()
         self.was_stance = stance
