@@ -122,6 +122,8 @@ class RigidController(MpcController):
             swing_height=self.swing_height,
             kp=self.kp,
             kd=self.kd,
+            swing_timing=cfg.robot.rigid.swing_timing,
+            swing_feedforward=cfg.robot.rigid.swing_feedforward,
         )
         return ControlStep(
             forces=forces,
