@@ -352,6 +352,10 @@ class ControllerConfig:
     # how the two primitives bracketing a direction combine: whole cycles of one or the other, their
     # schedules mixed, or one primitive with their parameters interpolated (slotexp/locomotion/library.py)
     blend: str = choice_field("cycles", "cycles", "schedules", "parameters")
+    # rigid: the lever arms of the MPC's B_k. "horizon": each step's footholds (feet standing, swing targets,
+    # and the footholds of steps that land later in the horizon) relative to the CoM predicted for that step
+    # (seed 001); "current": the feet where they stand and the swing targets, relative to the CoM now, one B
+    footholds: str = choice_field("horizon", "horizon", "current")
 
 
 # --------------------------------------------------------------------------- scenarios

@@ -124,6 +124,41 @@ def test_gait_timing_helpers() -> None:
     np.testing.assert_array_equal(swing_steps_left(contacts), [0, 2, 0, 2])
 
 
+@pytest.mark.parametrize(
+    ("velocity", "yaw_rate", "yaw"), [((0.5, 0.0), 0.0, 0.0), ((0.0, 0.0), 0.5, 0.3)], ids=["walk", "turn"]
+)
+def test_horizon_lever_arms_are_each_steps_footholds_from_the_predicted_com(velocity, yaw_rate, yaw) -> None:
+    # seed 001's r_{k,i}: footholds of step k minus the CoM predicted for step k, worked by hand for the
+    # trot rolled 3 steps: RL and FR are in swing (landing at step 5 on their targets), FL and RR stand
+    # until step 5, swing 6-12 and land at step 13 on new footholds
+    cfg = _cfg(f"gait.velocity=[{velocity[0]},{velocity[1]}]", f"gait.yaw_rate={yaw_rate}")
+    robot = build_robot(cfg.robot)
+    ctrl = RigidController(cfg, robot)
+    for _ in range(3):
+        ctrl.gait.roll()
+    contacts = ctrl.gait.contacts(16)
+    np.testing.assert_array_equal(contacts[:, 0], [1] * 6 + [0] * 7 + [1] * 3)  # FL
+    np.testing.assert_array_equal(contacts[:, 1], [0] * 5 + [1] * 9 + [0] * 2)  # RL
+    x = np.zeros(12)
+    x[2], x[3:6], x[8], x[9:11] = yaw, [1.0, 2.0, 0.26], yaw_rate, velocity  # moving as asked: no feedback term
+    feet = np.array([[1.2, 2.1, 0.0], [0.8, 2.1, 0.0], [0.8, 1.9, 0.0], [1.2, 1.9, 0.0]])
+    ctrl.targets = feet + [0.03, 0.0, 0.0]
+    arms = ctrl.horizon_lever_arms(x, 0.0, contacts, feet)
+    t = 0.02 * np.arange(16)
+    com = np.column_stack([1.0 + velocity[0] * t, np.full(16, 2.0), np.full(16, 0.26)])
+    # a landing at step 13: the shoulder (the nominal foot) plus symmetry t_stance / 2 v = 0.09 v, turned by
+    # the yaw predicted for step 13, from the CoM predicted for step 13
+    yaw13 = yaw + yaw_rate * t[13]
+    rot = np.array([[np.cos(yaw13), -np.sin(yaw13)], [np.sin(yaw13), np.cos(yaw13)]])
+    for leg in (0, 2):
+        landed = np.zeros(3)
+        landed[0:2] = com[13, 0:2] + rot @ (robot.feet_body[leg, 0:2] + 0.09 * np.asarray(velocity))
+        np.testing.assert_allclose(arms[:13, leg], feet[leg] - com[:13], atol=1e-12)
+        np.testing.assert_allclose(arms[13:, leg], landed - com[13:], atol=1e-12)
+    for leg in (1, 3):  # on their way: their targets, from the step they land on
+        np.testing.assert_allclose(arms[:, leg], ctrl.targets[leg] - com, atol=1e-12)
+
+
 # ----------------------------------------------------------------------------- the model (MuJoCo)
 @cache
 def _cfg(*overrides: str):
@@ -307,8 +342,7 @@ def _trot_problems() -> list:
     for k in range(24):
         x, feet = plant.state(), plant.feet()
         step = ctrl.step(k * ctrl.period, x, feet)
-        arms = np.where(step.command.stance[:, None], feet, step.command.swing_target) - x[3:6]
-        out.append((x, step.x_ref, arms, step.plan))
+        out.append((x, step.x_ref, ctrl.lever_arms.copy(), step.plan))  # seed 001's B_k: arms per step
         plant.step(step.command, ctrl.period)
     return out[::4]
 
@@ -319,6 +353,13 @@ def _solve(*overrides: str) -> list:
     robot = build_robot(cfg.robot)
     mpc = make_mpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
     return [mpc.solve(*p) for p in _trot_problems()]
+
+
+def test_the_rigid_qps_lever_arms_change_over_the_horizon() -> None:
+    # walking at 0.5 m/s the CoM moves 10 mm per step over feet that stand still: every B_k differs
+    for _, _, arms, _ in _trot_problems():
+        assert arms.shape == (16, 4, 3)
+        np.testing.assert_allclose(np.diff(arms[:, :, 0], axis=0).min(axis=1), -0.01, atol=1e-3)
 
 
 @pytest.mark.parametrize("backend", BACKENDS.names())
