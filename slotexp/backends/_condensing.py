@@ -155,6 +155,16 @@ def structure(mask: np.ndarray, wrench: np.ndarray, arms: np.ndarray):
 
 
 @njit(cache=True)
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Two 6 x 6 matrices are equal entry for entry (stops at the first difference)."""
+    for i in range(6):
+        for j in range(6):
+            if a[i, j] != b[i, j]:
+                return False
+    return True
+
+
+@njit(cache=True)
 def condense(
     a_c: np.ndarray,
     b_d: np.ndarray,
@@ -182,7 +192,9 @@ def condense(
     fixed over the horizon (Gamma_T = I T + A_c T^2 / 2; A_c's rows 6:12 and B_c's
     rows 0:6 are zero). With R_k = W_k V_k (6 x da) and C = T A_c G, the block (j, l)
     of the condensed Hessian is R_j' [c0 G'QG + c1[j,l] G'QC + c1[l,j] C'QG + c2 C'QC] R_l:
-    three 6 x 6 Gram matrices per update, then one small product per pair of steps.
+    three 6 x 6 Gram matrices per update, then one small product per pair of steps, or,
+    when few steps differ in R_k (one B for the horizon), R_g' S R_g' per pair of groups
+    and a weighted sum per pair of steps.
     """
     h = x_ref.shape[0]
     ta = period * a_c
@@ -196,30 +208,67 @@ def condense(
     s01 = g_map.T @ qc
     s10 = np.ascontiguousarray(s01.T)
     s11 = c_map.T @ qc
-    r = np.zeros((h, 6, 6))  # R_k, its columns past da zero
-    t00, t01, t10, t11 = np.empty((h, 6, 6)), np.empty((h, 6, 6)), np.empty((h, 6, 6)), np.empty((h, 6, 6))
+    # R_k, its columns past da zero; steps with the same R_k form a group (with one B for the horizon the
+    # groups are the contact patterns; walking with per-step arms, every step is its own)
+    r = np.zeros((h, 6, 6))
+    grp = np.zeros(h, dtype=np.int64)
+    first = np.zeros(h, dtype=np.int64)
+    n_grp = 0
     for k in range(h):
         d = da[pid[k]]
         r[k, :, :d] = np.ascontiguousarray(b_d[k, 6:12]) @ np.ascontiguousarray(basis[pid[k], :, :d])
-        t00[k], t01[k], t10[k], t11[k] = s00 @ r[k], s01 @ r[k], s10 @ r[k], s11 @ r[k]
+        grp[k] = -1
+        for g in range(n_grp):
+            if pid[first[g]] == pid[k] and _same(r[first[g]], r[k]):
+                grp[k] = g
+                break
+        if grp[k] < 0:
+            first[n_grp] = k
+            grp[k] = n_grp
+            n_grp += 1
     na = a_off[h]
     hess = np.zeros((na, na))
-    mid = np.empty((6, 6))
-    for j in range(h):
-        dj, oj = da[pid[j]], a_off[j]
-        for l in range(j, h):
-            dl, ol = da[pid[l]], a_off[l]
-            w0, w1, w2, w3 = c0[j, l], c1[j, l], c1[l, j], c2[j, l]
-            for m in range(6):
-                for c in range(dl):
-                    mid[m, c] = w0 * t00[l, m, c] + w1 * t01[l, m, c] + w2 * t10[l, m, c] + w3 * t11[l, m, c]
-            for a in range(dj):
-                for c in range(dl):
-                    acc = 0.0
-                    for m in range(6):
-                        acc += r[j, m, a] * mid[m, c]
-                    hess[oj + a, ol + c] = acc
-                    hess[ol + c, oj + a] = acc
+    if 4 * n_grp * n_grp <= h * (h + 1) // 2:
+        # few groups: their four Gram matrices R_g' S R_g' once, then a weighted sum per pair of steps
+        gram = np.empty((n_grp, n_grp, 4, 6, 6))
+        for g in range(n_grp):
+            rg = np.ascontiguousarray(r[first[g]].T)
+            for g2 in range(n_grp):
+                r2 = r[first[g2]]
+                gram[g, g2, 0], gram[g, g2, 1] = rg @ (s00 @ r2), rg @ (s01 @ r2)
+                gram[g, g2, 2], gram[g, g2, 3] = rg @ (s10 @ r2), rg @ (s11 @ r2)
+        for j in range(h):
+            dj, oj = da[pid[j]], a_off[j]
+            for l in range(j, h):
+                dl, ol = da[pid[l]], a_off[l]
+                w0, w1, w2, w3 = c0[j, l], c1[j, l], c1[l, j], c2[j, l]
+                blk = gram[grp[j], grp[l]]
+                for a in range(dj):
+                    for c in range(dl):
+                        val = w0 * blk[0, a, c] + w1 * blk[1, a, c] + w2 * blk[2, a, c] + w3 * blk[3, a, c]
+                        hess[oj + a, ol + c] = val
+                        hess[ol + c, oj + a] = val
+    else:
+        # R_j' [weighted S] R_l for every pair, the S R_l once per step
+        t00, t01, t10, t11 = np.empty((h, 6, 6)), np.empty((h, 6, 6)), np.empty((h, 6, 6)), np.empty((h, 6, 6))
+        for k in range(h):
+            t00[k], t01[k], t10[k], t11[k] = s00 @ r[k], s01 @ r[k], s10 @ r[k], s11 @ r[k]
+        mid = np.empty((6, 6))
+        for j in range(h):
+            dj, oj = da[pid[j]], a_off[j]
+            for l in range(j, h):
+                dl, ol = da[pid[l]], a_off[l]
+                w0, w1, w2, w3 = c0[j, l], c1[j, l], c1[l, j], c2[j, l]
+                for m in range(6):
+                    for c in range(dl):
+                        mid[m, c] = w0 * t00[l, m, c] + w1 * t01[l, m, c] + w2 * t10[l, m, c] + w3 * t11[l, m, c]
+                for a in range(dj):
+                    for c in range(dl):
+                        acc = 0.0
+                        for m in range(6):
+                            acc += r[j, m, a] * mid[m, c]
+                        hess[oj + a, ol + c] = acc
+                        hess[ol + c, oj + a] = acc
     for i in range(na):
         hess[i, i] += rho
     # free response x_k = x0 + k (T A_c x0 + g) + k (k - 1) / 2 T A_c g, weighted errors w_k
