@@ -120,24 +120,36 @@ def _model(
 
 @njit(cache=True)
 def _model_steps(
-    x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray, gravity: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A_c, B_c per step (H, 12, 12), g_c for lever arms per step (H, 4, 3): the hot path of every backend.
+    x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray, gravity: float, period: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A_c, and A_d, B_k per step (H, 12, 12), g_d, for lever arms per step (H, 4, 3): every backend's hot path.
 
     The attitude (A_c and the world inertia) is frozen at ``x`` over the horizon as
     before; only the feet move (seed 001's B_k: the footholds of step k relative to
-    the CoM at step k).
+    the CoM at step k). ``same[k]`` marks a step whose arms equal step k-1's: its B_k
+    is copied, not rebuilt (one B for the horizon costs one B).
     """
-    a, g = _state_matrix(x, gravity)
+    a_c, g_c = _state_matrix(x, gravity)
     iw_inv = _world_inertia_inv(x, inertia_body_inv)
+    eye = np.eye(12)
+    gamma = eye * period + a_c * (period**2 / 2.0)
     h = lever_arms.shape[0]
-    b = np.zeros((h, 12, 12))
+    b_c = np.zeros((12, 12))
+    b_d = np.empty((h, 12, 12))
+    same = np.zeros(h, dtype=np.bool_)
     for k in range(h):
-        if k > 0 and np.all(lever_arms[k] == lever_arms[k - 1]):
-            b[k] = b[k - 1]
+        if k > 0:
+            same[k] = True
+            for leg in range(4):
+                for i in range(3):
+                    if lever_arms[k, leg, i] != lever_arms[k - 1, leg, i]:
+                        same[k] = False
+        if same[k]:
+            b_d[k] = b_d[k - 1]
         else:
-            _input_matrix(lever_arms[k], mass, iw_inv, b[k])
-    return a, b, g
+            _input_matrix(lever_arms[k], mass, iw_inv, b_c)
+            b_d[k] = gamma @ b_c
+    return a_c, eye + a_c * period, b_d, gamma @ g_c, same
 
 
 def continuous_model(
@@ -163,22 +175,6 @@ def _discretize(
     eye = np.eye(a.shape[0])
     gamma = eye * period + a * (period**2 / 2.0)
     return eye + a * period, gamma @ b, gamma @ g
-
-
-@njit(cache=True)
-def _discretize_steps(
-    a: np.ndarray, b: np.ndarray, g: np.ndarray, period: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_discretize` with one B per step (H, 12, 12); a B equal to the step before's is copied."""
-    eye = np.eye(a.shape[0])
-    gamma = eye * period + a * (period**2 / 2.0)
-    b_d = np.empty(b.shape)
-    for k in range(b.shape[0]):
-        if k > 0 and np.all(b[k] == b[k - 1]):
-            b_d[k] = b_d[k - 1]
-        else:
-            b_d[k] = gamma @ b[k]
-    return eye + a * period, b_d, gamma @ g
 
 
 def discretize(a: np.ndarray, b: np.ndarray, g: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -234,9 +230,7 @@ class DiscreteModel:
         period: float,
     ) -> None:
         """``x`` a contiguous float array, ``lever_arms`` (H, 4, 3) from :func:`step_lever_arms`."""
-        a_c, b_c, g_c = _model_steps(x, lever_arms, mass, inertia_body_inv, gravity)
-        self.a_c = a_c
-        self.a, self.b, self.g = _discretize_steps(a_c, b_c, g_c, period)
+        self.a_c, self.a, self.b, self.g, _ = _model_steps(x, lever_arms, mass, inertia_body_inv, gravity, period)
 
 
 @njit(cache=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import njit
-from ..mpc import _discretize_steps, _model_steps, _rollout
+from ..mpc import _model_steps, _rollout
 
 INF = 1.0e30  # DAQP's infinity
 RANK_TOL = 1.0e-9  # relative singular-value threshold of the wrench map
@@ -181,6 +181,7 @@ def condense(
     c0: np.ndarray,
     c1: np.ndarray,
     c2: np.ndarray,
+    same: np.ndarray,
 ):
     """Hessian H (na, na) and gradient f of the QP in the wrench coordinates a (states eliminated).
 
@@ -194,7 +195,8 @@ def condense(
     of the condensed Hessian is R_j' [c0 G'QG + c1[j,l] G'QC + c1[l,j] C'QG + c2 C'QC] R_l:
     three 6 x 6 Gram matrices per update, then one small product per pair of steps, or,
     when few steps differ in R_k (one B for the horizon), R_g' S R_g' per pair of groups
-    and a weighted sum per pair of steps.
+    and a weighted sum per pair of steps. ``same[k]``: B_k is step k-1's (R_k is then too,
+    within a class).
     """
     h = x_ref.shape[0]
     ta = period * a_c
@@ -215,6 +217,10 @@ def condense(
     first = np.zeros(h, dtype=np.int64)
     n_grp = 0
     for k in range(h):
+        if k > 0 and same[k] and pid[k] == pid[k - 1]:
+            r[k] = r[k - 1]
+            grp[k] = grp[k - 1]
+            continue
         d = da[pid[k]]
         r[k, :, :d] = np.ascontiguousarray(b_d[k, 6:12]) @ np.ascontiguousarray(basis[pid[k], :, :d])
         grp[k] = -1
@@ -435,11 +441,10 @@ def build(
     bases, condensed Hessian H = L L' (Cholesky) and the linear term L^-1 f of the
     solver's variables z = L' a, and the row layout.
     """
-    a_c, b_c, g_c = _model_steps(x, lever_arms, mass, inertia_inv, gravity)
-    a_d, b_d, g_d = _discretize_steps(a_c, b_c, g_c, period)
+    a_c, a_d, b_d, g_d, same = _model_steps(x, lever_arms, mass, inertia_inv, gravity, period)
     mask, consistent = force_mask(mu, fz_min, fz_max)
     pid, basis, da, db, a_off, b_off, rows = structure(mask, np.ascontiguousarray(b_d[:, 6:12]), lever_arms)
-    hess, grad = condense(a_c, b_d, g_d, x, x_ref, q, rho, period, basis, da, pid, a_off, c0, c1, c2)
+    hess, grad = condense(a_c, b_d, g_d, x, x_ref, q, rho, period, basis, da, pid, a_off, c0, c1, c2, same)
     chol = np.linalg.cholesky(hess) if hess.shape[0] else np.zeros((0, 0))
     lin = forward(chol, grad)
     layout = row_layout(mask, mu, fz_min, fz_max, weight, band, rows)
