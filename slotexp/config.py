@@ -200,6 +200,12 @@ class RigidConfig:
     swing_height: float = num_field(0.08, lo=0.0, hi=0.5, unit="m")  # apex of the swing parabola
     swing_kp: list[float] = vec_field([600.0, 600.0, 600.0], length=3, lo=0.0, unit="N/m")
     swing_kd: list[float] = vec_field([15.0, 15.0, 15.0], length=3, lo=0.0, unit="N s/m")
+    # how the foot runs along seed 002's parabola: "smooth" leaves and lands at rest (minimum jerk), "linear"
+    # at constant speed (seed 002; it lands at 4 h / T downwards, a velocity step the leg cannot follow)
+    swing_timing: str = choice_field("smooth", "smooth", "linear")
+    # add the swing leg's inverse dynamics for the path's acceleration (MIT Cheetah 3's swing feedforward,
+    # Bledt et al. 2018) to the Cartesian PD, so the foot keeps to its path and lands when the gait says
+    swing_feedforward: bool = True
 
 
 @dataclass
@@ -349,6 +355,10 @@ class ControllerConfig:
     # how the two primitives bracketing a direction combine: whole cycles of one or the other, their
     # schedules mixed, or one primitive with their parameters interpolated (slotexp/locomotion/library.py)
     blend: str = choice_field("cycles", "cycles", "schedules", "parameters")
+    # rigid: the lever arms of the MPC's B_k. "horizon": each step's footholds (feet standing, swing targets,
+    # and the footholds of steps that land later in the horizon) relative to the CoM predicted for that step
+    # (seed 001); "current": the feet where they stand and the swing targets, relative to the CoM now, one B
+    footholds: str = choice_field("horizon", "horizon", "current")
 
 
 # --------------------------------------------------------------------------- scenarios

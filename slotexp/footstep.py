@@ -78,21 +78,34 @@ def footholds(
 
 
 def swing_point(
-    p0: np.ndarray, p1: np.ndarray, height: float, t: float, duration: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Seed 002's swing foot: position and velocity at time ``t`` of a swing from ``p0`` to ``p1``.
+    p0: np.ndarray, p1: np.ndarray, height: float, t: float, duration: float, timing: str = "linear"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Seed 002's swing foot: position, velocity and acceleration at time ``t`` of a swing from ``p0`` to ``p1``.
 
-    Horizontal motion is linear in time (``(p1 - p0) t / T``); the height is the
-    straight line between the two ends plus the parabola ``-4 h s (s - 1)``,
-    s = t / T, which is zero at lift-off and touch-down and ``h`` at mid-swing
-    (seed 002's ``Height * t * (t - T)`` with its scale chosen to give apex ``h``).
+    The path is seed 002's parabola: horizontally the straight line from ``p0`` to
+    ``p1``, vertically that line plus ``-4 h s (s - 1)``, zero at both ends and ``h``
+    at s = 1/2 (seed 002's ``Height * t * (t - T)`` with its scale chosen to give
+    apex ``h``). ``timing`` sets how s runs from 0 to 1 over ``duration``:
+
+    - ``linear``: s = t / T (seed 002). The foot leaves and lands at full speed,
+      vertically 4 h / T, a step change of velocity the leg cannot follow;
+    - ``smooth``: the minimum-jerk law s = 10 u^3 - 15 u^4 + 6 u^5, u = t / T: the
+      same path, left and reached at rest with zero acceleration, so a leg can
+      track it and lands without an impact.
     """
     p0, p1 = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
-    s = float(np.clip(t / duration, 0.0, 1.0)) if duration > 0 else 1.0
+    u = float(np.clip(t / duration, 0.0, 1.0)) if duration > 0 else 1.0
     moving = 0.0 < t < duration
+    if timing == "smooth":
+        s = u**3 * (10.0 + u * (-15.0 + 6.0 * u))
+        ds = 30.0 * u**2 * (1.0 - u) ** 2 / duration if moving else 0.0
+        dds = 60.0 * u * (1.0 - u) * (1.0 - 2.0 * u) / duration**2 if moving else 0.0
+    else:
+        s, ds, dds = u, (1.0 / duration if moving else 0.0), 0.0
     pos = p0 + (p1 - p0) * s
     pos[2] += -4.0 * height * s * (s - 1.0)
-    vel = (p1 - p0) / duration if moving else np.zeros(3)
-    if moving:
-        vel[2] += -4.0 * height * (2.0 * s - 1.0) / duration
-    return pos, vel
+    # d/ds of the path, and d2/ds2 (only the parabola curves)
+    tangent = p1 - p0
+    tangent[2] += -4.0 * height * (2.0 * s - 1.0)
+    curvature = np.array([0.0, 0.0, -8.0 * height])
+    return pos, tangent * ds, tangent * dds + curvature * ds**2

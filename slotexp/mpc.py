@@ -5,8 +5,13 @@ current state and held over the horizon:
 
     d(roll, pitch, yaw)/dt = E(pitch, yaw)^-1 omega      (Z-Y-X Euler rates)
     dp/dt = v
-    d omega/dt = I_w^-1 sum_i r_i x f_i,   I_w = R I_b R^T
+    d omega/dt = I_w^-1 sum_i r_{k,i} x f_i,   I_w = R I_b R^T
     dv/dt = sum_i f_i / m - g e_z
+
+The lever arms r_{k,i} may change from step to step (seed 001's B_k: the
+footholds of step k relative to the CoM predicted for step k) or be one set for
+the whole horizon (the feet where they stand); :func:`step_lever_arms` makes
+both (H, 4, 3). The attitude terms (E^-1, I_w) stay frozen at the current state.
 
 A has A @ A = 0, so the zero-order-hold discretisation is exact in closed form:
 A_d = I + A T, B_d = (I T + A T^2/2) B, g_d = (I T + A T^2/2) g.
@@ -14,7 +19,7 @@ A_d = I + A T, B_d = (I T + A T^2/2) B, g_d = (I T + A T^2/2) g.
 The QP (paper eq. 8-9) is the same for every backend:
 
     min  sum_{k=1..H} (x_k - x*_k)^T Q (x_k - x*_k) + r sum_{k=0..H-1} |u_k|^2
-    s.t. x_{k+1} = A_d x_k + B_d u_k + g_d,  x_0 = measured state
+    s.t. x_{k+1} = A_d x_k + B_k u_k + g_d,  x_0 = measured state
          fz_min <= f_z <= fz_max,  |f_x|, |f_y| <= mu f_z  (per leg and step)
          |sum_i f_z - m g| <= band                           (per step)
 
@@ -54,10 +59,8 @@ def rotation_from_euler(rpy: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _model(
-    x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray, gravity: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A_c, B_c, g_c in closed form (no matrix inverses): the hot path of every backend."""
+def _world_inertia_inv(x: np.ndarray, inertia_body_inv: np.ndarray) -> np.ndarray:
+    """I_w^-1 = R I_b^-1 R^T at the attitude of state ``x``."""
     cr, sr = np.cos(x[0]), np.sin(x[0])
     cp, sp = np.cos(x[1]), np.sin(x[1])
     cy, sy = np.cos(x[2]), np.sin(x[2])
@@ -68,24 +71,85 @@ def _model(
             [-sp, cp * sr, cp * cr],
         ]
     )
-    iw_inv = rot @ inertia_body_inv @ rot.T
+    return rot @ inertia_body_inv @ rot.T
+
+
+@njit(cache=True)
+def _state_matrix(x: np.ndarray, gravity: float) -> tuple[np.ndarray, np.ndarray]:
+    """A_c and g_c at state ``x`` (E^-1 of the Z-Y-X Euler rates, position from velocity, gravity)."""
+    cp, sp = np.cos(x[1]), np.sin(x[1])
+    cy, sy = np.cos(x[2]), np.sin(x[2])
     a = np.zeros((12, 12))
-    # E^-1 of the Z-Y-X Euler-rate matrix E(pitch, yaw)
     a[0, 6], a[0, 7] = cy / cp, sy / cp
     a[1, 6], a[1, 7] = -sy, cy
     a[2, 6], a[2, 7], a[2, 8] = cy * sp / cp, sy * sp / cp, 1.0
     for i in range(3):
         a[3 + i, 9 + i] = 1.0
-    b = np.zeros((12, 12))
-    for leg in range(4):
-        r = lever_arms[leg]
-        sk = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
-        b[6:9, 3 * leg : 3 * leg + 3] = iw_inv @ sk
-        for i in range(3):
-            b[9 + i, 3 * leg + i] = 1.0 / mass
     g = np.zeros(12)
     g[11] = -gravity
+    return a, g
+
+
+@njit(cache=True)
+def _input_matrix(lever_arms: np.ndarray, mass: float, iw_inv: np.ndarray, b: np.ndarray) -> None:
+    """B_c for feet at ``lever_arms`` (4, 3) into ``b`` (zeroed): I_w^-1 [r_i]x on omega, I / m on v.
+
+    Column j of I_w^-1 [r]x is I_w^-1 (r x e_j), written out (no temporaries: this
+    runs for every step of the horizon).
+    """
+    for leg in range(4):
+        rx, ry, rz = lever_arms[leg, 0], lever_arms[leg, 1], lever_arms[leg, 2]
+        c = 3 * leg
+        for i in range(3):
+            b[6 + i, c] = iw_inv[i, 1] * rz - iw_inv[i, 2] * ry  # r x e_x = (0, r_z, -r_y)
+            b[6 + i, c + 1] = iw_inv[i, 2] * rx - iw_inv[i, 0] * rz  # r x e_y = (-r_z, 0, r_x)
+            b[6 + i, c + 2] = iw_inv[i, 0] * ry - iw_inv[i, 1] * rx  # r x e_z = (r_y, -r_x, 0)
+            b[9 + i, c + i] = 1.0 / mass
+
+
+@njit(cache=True)
+def _model(
+    x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray, gravity: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A_c, B_c, g_c in closed form (no matrix inverses) for one set of lever arms (4, 3)."""
+    a, g = _state_matrix(x, gravity)
+    b = np.zeros((12, 12))
+    _input_matrix(lever_arms, mass, _world_inertia_inv(x, inertia_body_inv), b)
     return a, b, g
+
+
+@njit(cache=True)
+def _model_steps(
+    x: np.ndarray, lever_arms: np.ndarray, mass: float, inertia_body_inv: np.ndarray, gravity: float, period: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A_c, and A_d, B_k per step (H, 12, 12), g_d, for lever arms per step (H, 4, 3): every backend's hot path.
+
+    The attitude (A_c and the world inertia) is frozen at ``x`` over the horizon as
+    before; only the feet move (seed 001's B_k: the footholds of step k relative to
+    the CoM at step k). ``same[k]`` marks a step whose arms equal step k-1's: its B_k
+    is copied, not rebuilt (one B for the horizon costs one B).
+    """
+    a_c, g_c = _state_matrix(x, gravity)
+    iw_inv = _world_inertia_inv(x, inertia_body_inv)
+    eye = np.eye(12)
+    gamma = eye * period + a_c * (period**2 / 2.0)
+    h = lever_arms.shape[0]
+    b_c = np.zeros((12, 12))
+    b_d = np.empty((h, 12, 12))
+    same = np.zeros(h, dtype=np.bool_)
+    for k in range(h):
+        if k > 0:
+            same[k] = True
+            for leg in range(4):
+                for i in range(3):
+                    if lever_arms[k, leg, i] != lever_arms[k - 1, leg, i]:
+                        same[k] = False
+        if same[k]:
+            b_d[k] = b_d[k - 1]
+        else:
+            _input_matrix(lever_arms[k], mass, iw_inv, b_c)
+            b_d[k] = gamma @ b_c
+    return a_c, eye + a_c * period, b_d, gamma @ g_c, same
 
 
 def continuous_model(
@@ -133,8 +197,26 @@ class MpcSolution:
     inputs: np.ndarray | None = None  # (H, 12) the whole planned input sequence (None if the solve failed)
 
 
+def step_lever_arms(lever_arms: np.ndarray, horizon: int) -> np.ndarray:
+    """Lever arms per horizon step, (H, 4, 3) contiguous floats.
+
+    A (4, 3) array (the feet where they stand, one B for the whole horizon) is
+    repeated over the horizon; an (H, 4, 3) array (seed 001's footholds of each
+    step relative to the CoM predicted for that step) is taken as it is.
+    """
+    arms = np.asarray(lever_arms, dtype=float)
+    if arms.shape == (4, 3):
+        return np.ascontiguousarray(np.broadcast_to(arms, (horizon, 4, 3)))
+    if arms.shape != (horizon, 4, 3):
+        raise ValueError(f"lever arms must be (4, 3) or (horizon={horizon}, 4, 3), got {arms.shape}")
+    return np.ascontiguousarray(arms)
+
+
 class DiscreteModel:
-    """The prediction model for one step, computed once and shared by a backend's build and rollout."""
+    """The prediction model for one MPC update, computed once and shared by a backend's build and rollout.
+
+    ``b`` is (H, 12, 12): B_k of each horizon step.
+    """
 
     __slots__ = ("a", "a_c", "b", "g")
 
@@ -147,10 +229,8 @@ class DiscreteModel:
         gravity: float,
         period: float,
     ) -> None:
-        """``x`` and ``lever_arms`` as contiguous float arrays (the backends' hot path converts once)."""
-        a_c, b_c, g_c = _model(x, lever_arms, mass, inertia_body_inv, gravity)
-        self.a_c = a_c
-        self.a, self.b, self.g = _discretize(a_c, b_c, g_c, period)
+        """``x`` a contiguous float array, ``lever_arms`` (H, 4, 3) from :func:`step_lever_arms`."""
+        self.a_c, self.a, self.b, self.g, _ = _model_steps(x, lever_arms, mass, inertia_body_inv, gravity, period)
 
 
 @njit(cache=True)
@@ -169,7 +249,7 @@ def _rollout(
     xs[0] = x0
     cost = 0.0
     for k in range(h):
-        xs[k + 1] = a @ xs[k] + b @ u[k] + g
+        xs[k + 1] = a @ xs[k] + b[k] @ u[k] + g
         e = xs[k + 1] - x_ref[k]
         cost += np.sum(q * e * e) + r * np.sum(u[k] * u[k])
     return xs, cost
@@ -192,7 +272,7 @@ def solution_from_inputs(
     The predicted states are rolled out through the model, so they satisfy the
     dynamics exactly whatever the backend's equality tolerance, and the objective
     is evaluated on them (paper eq. 8, without the solver's objective scaling).
-    ``weights`` is (q_diag as an array, r_weight), unscaled. The wall time covers the
+    ``weights`` is (q_diag as an array, r_weight), unscaled; ``model.b`` holds B_k per step. The wall time covers the
     whole step: build or update, solve, and this rollout.
     """
     u = np.ascontiguousarray(u, dtype=float)

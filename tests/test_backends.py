@@ -3,7 +3,9 @@
 The reference is Clarabel through CVXPY at tight tolerances. Sequences are fed to
 one instance per backend, so warm starts and in-place updates are exercised:
 random perturbed states on three gaits, a closed-loop walk with a push, the
-zero-force (swing legs lifted) gait that removes variables, and the strict balance.
+zero-force (swing legs lifted) gait that removes variables, the strict balance,
+and lever arms that change from step to step (seed 001's B_k). The condensed
+backend's matrices are checked against a direct stacking of A_d and the B_k.
 """
 
 from __future__ import annotations
@@ -15,9 +17,10 @@ import numpy as np
 import pytest
 
 from slotexp.backends import BACKENDS, backend_class, make_mpc
+from slotexp.backends._condensing import build, horizon_coefficients
 from slotexp.controllers.paper import PaperController as Controller
 from slotexp.gait import GaitMatrix, contact_plan
-from slotexp.mpc import plan_violations
+from slotexp.mpc import DiscreteModel, continuous_model, discretize, plan_violations, step_lever_arms
 from slotexp.plants import ForceCommand, nominal_state
 from slotexp.plants.ideal import IdealPlant
 from slotexp.reference import reference
@@ -62,6 +65,29 @@ def _random_problems(gait: str, n: int, seed: int, *extra: str) -> tuple[tuple[s
     return overrides, out
 
 
+def step_arms(arms: np.ndarray, plan, period: float, velocity: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Lever arms (H, 4, 3) as a walking robot's: the CoM moves at ``velocity`` over feet that stay put,
+    and a foot that lands after a swing lands 1-3 cm away from where it was."""
+    h = plan.stance.shape[0]
+    feet = np.broadcast_to(arms, (h, 4, 3)).copy()
+    for leg in range(4):
+        for k in np.flatnonzero(plan.stance[1:, leg] & ~plan.stance[:-1, leg]) + 1:
+            feet[k:, leg, 0:2] += rng.uniform(0.01, 0.03, 2) * rng.choice([-1.0, 1.0], 2)
+    return feet - (period * np.arange(h))[:, None, None] * velocity
+
+
+def _step_arm_problems(n: int, seed: int, *extra: str) -> tuple[tuple[str, ...], list]:
+    """The lifted-swing walk's random problems with lever arms that differ at every step."""
+    overrides, problems = _random_problems("walk", n, seed, *extra)
+    cfg = _cfg(*overrides)
+    rng = np.random.default_rng(seed + 100)
+    out = []
+    for x, x_ref, arms, plan in problems:
+        v = np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), 0.0])
+        out.append((x, x_ref, step_arms(arms, plan, 1 / cfg.mpc.rate_hz, v, rng), plan))
+    return overrides, out
+
+
 def _closed_loop(steps: int, push_at: int, *extra: str) -> tuple[tuple[str, ...], list]:
     """A perturbed walk on the ideal plant driven by the reference backend, pushed once."""
     overrides = tuple(extra)
@@ -94,6 +120,11 @@ def _sequences() -> dict[str, tuple[tuple[str, ...], list]]:
         "lifted_swing": _random_problems("walk", 8, 4, "gait.swing_contact=false", "mpc.f_max=12"),
         "lifted_crawl": _random_problems("crawl", 6, 5, "gait.swing_contact=false", "mpc.f_max=9"),
         "closed_loop": _closed_loop(45, 15),
+        # seed 001's B_k: the lever arms change at every step (the CoM moves, feet land elsewhere); short
+        # phases, so the same contact pattern comes back within the horizon with its feet somewhere else
+        "step_arms": _step_arm_problems(
+            8, 6, "gait.swing_contact=false", "mpc.f_max=12", "gait.phases=[[3,1,0,1,0],[3,0,1,0,1]]"
+        ),
     }
 
 
@@ -112,7 +143,16 @@ def _solve_all(problems: list, *overrides: str, stride: int = 1) -> list:
 
 @pytest.mark.parametrize(
     "sequence",
-    ["walk_random", "crawl_random", "omni_random", "strict_balance", "lifted_swing", "lifted_crawl", "closed_loop"],
+    [
+        "walk_random",
+        "crawl_random",
+        "omni_random",
+        "strict_balance",
+        "lifted_swing",
+        "lifted_crawl",
+        "closed_loop",
+        "step_arms",
+    ],
 )
 @pytest.mark.parametrize("backend", BACKENDS.names())
 def test_backend_matches_reference_and_satisfies_constraints(backend: str, sequence: str) -> None:
@@ -198,3 +238,118 @@ def test_every_backend_is_selectable_and_unknown_names_fail() -> None:
     cfg = _cfg()
     with pytest.raises(ValueError):
         make_mpc(cfg.mpc, dataclasses.replace(cfg.solver, name="nope"), 1.0, np.eye(3), 9.81)
+
+
+def test_step_arm_problems_change_their_lever_arms_within_the_horizon() -> None:
+    # guards the sequence above: every problem's B_k differ from step to step
+    for _, _, arms, _ in _sequences()["step_arms"][1]:
+        assert arms.shape[0] > 1 and np.min(np.abs(np.diff(arms, axis=0)).max(axis=(1, 2))) > 1e-4
+
+
+def test_equal_step_arms_are_the_single_b_model() -> None:
+    # per-step lever arms all equal to the current ones give B_k = the single B of the model, exactly
+    overrides, problems = _sequences()["lifted_swing"]
+    cfg = _cfg(*overrides)
+    robot = build_robot(cfg.robot)
+    period = 1 / cfg.mpc.rate_hz
+    for x, _, arms, _ in problems:
+        a, b, g = discretize(*continuous_model(x, arms, robot.mass, robot.inertia_body, cfg.sim.gravity), period)
+        model = DiscreteModel(
+            x,
+            step_lever_arms(arms, cfg.mpc.horizon),
+            robot.mass,
+            np.linalg.inv(robot.inertia_body),
+            cfg.sim.gravity,
+            period,
+        )
+        assert model.b.shape == (cfg.mpc.horizon, 12, 12)
+        np.testing.assert_array_equal(model.a, a)
+        np.testing.assert_array_equal(model.g, g)
+        for b_k in model.b:
+            np.testing.assert_array_equal(b_k, b)
+    with pytest.raises(ValueError, match="lever arms must be"):
+        step_lever_arms(np.zeros((3, 4, 3)), cfg.mpc.horizon)
+
+
+@pytest.mark.parametrize("backend", BACKENDS.names())
+def test_equal_step_arms_give_the_single_b_solution(backend: str) -> None:
+    # (H, 4, 3) arms all equal to the current (4, 3) ones: the same plan as the single B, to rounding
+    overrides, problems = _sequences()["lifted_swing"]
+    cfg = _cfg(f"solver={backend}", *overrides)
+    robot = build_robot(cfg.robot)
+    single = make_mpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
+    steps = make_mpc(cfg.mpc, cfg.solver, robot.mass, robot.inertia_body, cfg.sim.gravity)
+    for x, x_ref, arms, plan in problems[:3]:
+        a = single.solve(x, x_ref, arms, plan)
+        b = steps.solve(x, x_ref, np.stack([arms] * cfg.mpc.horizon), plan)
+        assert a.success and b.success
+        np.testing.assert_allclose(b.inputs, a.inputs, rtol=0, atol=1e-9)
+        assert b.objective == pytest.approx(a.objective, rel=1e-12)
+
+
+@pytest.mark.parametrize("sequence", ["step_arms", "lifted_swing", "walk_random"])
+def test_condensed_matrices_equal_a_direct_stacking_of_the_step_models(sequence: str) -> None:
+    """The condensed Hessian and gradient against Gamma' Q Gamma built from A_d and each B_k directly.
+
+    x_k = A^k x_0 + sum_j A^(k-1-j) (B_j u_j + g); with u_k = V_k [a_k; b_k], the
+    condensed QP in a must be V_a' (Gamma' Q Gamma + r I) V_a and V_a' Gamma' Q (x_free - x_ref),
+    and the internal forces b must not move the states (Gamma V_b = 0).
+    """
+    overrides, problems = _sequences()[sequence]
+    cfg = _cfg("solver=daqp", *overrides)
+    robot = build_robot(cfg.robot)
+    h, period = cfg.mpc.horizon, 1 / cfg.mpc.rate_hz
+    q = np.asarray(cfg.mpc.q_diag) * cfg.mpc.objective_scale
+    rho = cfg.mpc.r_weight * cfg.mpc.objective_scale
+    weight = robot.mass * cfg.sim.gravity
+    for x, x_ref, arms, plan in problems[:4]:
+        arms = step_lever_arms(arms, h)
+        out = build(
+            x,
+            arms,
+            robot.mass,
+            np.linalg.inv(robot.inertia_body),
+            cfg.sim.gravity,
+            period,
+            np.ascontiguousarray(x_ref),
+            *(np.ascontiguousarray(v, dtype=float) for v in (plan.mu, plan.fz_min, plan.fz_max)),
+            q,
+            rho,
+            *horizon_coefficients(h),
+            weight,
+            float(cfg.mpc.force_balance_band),
+        )
+        _, _, _, mask, _, pid, basis, da, db, a_off, b_off, chol, lin = out[:13]
+        hess, grad = chol @ chol.T, chol @ lin
+        # the direct stacking, from the single-B model of each step
+        models = [
+            discretize(*continuous_model(x, arms[k], robot.mass, robot.inertia_body, cfg.sim.gravity), period)
+            for k in range(h)
+        ]
+        a_d, g_d = models[0][0], models[0][2]
+        gamma = np.zeros((12 * h, 12 * h))
+        x_free = np.zeros((h, 12))
+        state = x.copy()
+        for k in range(h):
+            state = a_d @ state + g_d
+            x_free[k] = state
+            for j in range(k + 1):
+                gamma[12 * k : 12 * k + 12, 12 * j : 12 * j + 12] = np.linalg.matrix_power(a_d, k - j) @ models[j][1]
+        h_u = gamma.T @ np.diag(np.tile(q, h)) @ gamma + rho * np.eye(12 * h)
+        f_u = gamma.T @ (np.tile(q, h) * (x_free - x_ref).ravel())
+        na, nb = int(a_off[-1]), int(b_off[-1])
+        v_a, v_b = np.zeros((12 * h, na)), np.zeros((12 * h, nb))
+        for k in range(h):
+            p = pid[k]
+            v_a[12 * k : 12 * k + 12, a_off[k] : a_off[k + 1]] = basis[p][:, : da[p]]
+            v_b[12 * k : 12 * k + 12, b_off[k] : b_off[k + 1]] = basis[p][:, da[p] : da[p] + db[p]]
+        kept = mask.ravel()
+        # the bases span exactly the kept forces, orthonormally
+        np.testing.assert_allclose(
+            np.hstack([v_a, v_b])[kept].T @ np.hstack([v_a, v_b])[kept], np.eye(na + nb), atol=1e-12
+        )
+        assert np.all(v_a[~kept] == 0.0) and np.all(v_b[~kept] == 0.0)
+        scale = np.abs(h_u).max()
+        np.testing.assert_allclose(gamma @ v_b, 0.0, atol=1e-12 * np.abs(gamma).max())
+        np.testing.assert_allclose(hess, v_a.T @ h_u @ v_a, rtol=0, atol=1e-10 * scale)
+        np.testing.assert_allclose(grad, v_a.T @ f_u, rtol=0, atol=1e-10 * np.abs(f_u).max())

@@ -30,7 +30,12 @@ class MpcBackend(ABC):
 
     @abstractmethod
     def solve(self, x: np.ndarray, x_ref: np.ndarray, lever_arms: np.ndarray, plan: ContactPlan) -> MpcSolution:
-        """Forces for state ``x``; ``x_ref`` is (H, 12), ``plan`` arrays are (H, 4), ``lever_arms`` (4, 3)."""
+        """Forces for state ``x``; ``x_ref`` is (H, 12), ``plan`` arrays are (H, 4).
+
+        ``lever_arms`` is the feet relative to the CoM, world frame: (4, 3) for one
+        B over the horizon, or (H, 4, 3) for a B_k per step
+        (:func:`~slotexp.mpc.step_lever_arms`).
+        """
 
 
 def single_threaded_blas() -> None:

@@ -10,10 +10,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import njit
-from ..mpc import _discretize, _model, _rollout
+from ..mpc import _model_steps, _rollout
 
 INF = 1.0e30  # DAQP's infinity
 RANK_TOL = 1.0e-9  # relative singular-value threshold of the wrench map
+# m: two steps share a force basis when their loaded feet sit at the same places relative to each other
+# (to rounding: per-step lever arms are footholds minus a moving CoM, exact to ~1e-16 m per metre)
+SAME_FEET_TOL = 1.0e-12
 EQUALITY = 5  # DAQP sense: active + immutable
 ROWS_PER_STEP = 21  # 4 legs x (f_z bounds + 4 friction rows) + balance
 
@@ -57,34 +60,58 @@ def force_mask(mu: np.ndarray, fz_min: np.ndarray, fz_max: np.ndarray) -> tuple[
 
 
 @njit(cache=True)
-def structure(mask: np.ndarray, wrench: np.ndarray):
+def _same_feet(mask: np.ndarray, arms: np.ndarray, k: int, j: int) -> bool:
+    """Steps k and j keep the same forces and their loaded feet are placed alike relative to each other.
+
+    The wrench map's row space (what the basis splits) depends on the loaded feet's
+    relative positions only: moving every lever arm by the same vector (the CoM
+    moving under fixed feet) adds a multiple of the net force to the torque rows.
+    """
+    for c in range(12):
+        if mask[k, c] != mask[j, c]:
+            return False
+    first = -1
+    for leg in range(4):
+        if not mask[k, 3 * leg + 2]:
+            continue
+        if first < 0:
+            first = leg
+            continue
+        for i in range(3):
+            dk = arms[k, leg, i] - arms[k, first, i]
+            dj = arms[j, leg, i] - arms[j, first, i]
+            if abs(dk - dj) > SAME_FEET_TOL:
+                return False
+    return True
+
+
+@njit(cache=True)
+def structure(mask: np.ndarray, wrench: np.ndarray, arms: np.ndarray):
     """Per-step bases that split the kept forces into wrench and internal directions.
 
     ``mask`` (H, 12) marks the force components that are decision variables;
-    ``wrench`` (6, 12) maps forces to what the dynamics see (net force and torque).
-    For each distinct contact pattern p, ``basis[p]`` (12, 12) holds in its first
-    ``da[p]`` columns an orthonormal basis of the row space of the wrench map
-    restricted to the kept components, and in the next ``db[p]`` columns one of
-    its null space (internal forces, invisible to the dynamics). Returns
-    (pattern of each step, basis, da, db, offsets of a and b per step, rows).
+    ``wrench`` (H, 6, 12) maps each step's forces to what the dynamics see (net
+    force and torque, rows 6:12 of B_k); ``arms`` (H, 4, 3) are the lever arms.
+    Steps with the same kept forces and the same relative feet (:func:`_same_feet`)
+    form a class p; ``basis[p]`` (12, 12) holds in its first ``da[p]`` columns an
+    orthonormal basis of the row space of the class's wrench map restricted to the
+    kept components, and in the next ``db[p]`` columns one of its null space
+    (internal forces, invisible to the dynamics). With one B for the horizon the
+    classes are the contact patterns. Returns (class of each step, basis, da, db,
+    offsets of a and b per step, rows).
     """
     h = mask.shape[0]
-    patterns = np.zeros((h, 12), dtype=np.bool_)
+    rep = np.zeros(h, dtype=np.int64)  # the first step of each class
     pid = np.zeros(h, dtype=np.int64)
     count = 0
     for k in range(h):
         found = -1
         for p in range(count):
-            same = True
-            for c in range(12):
-                if patterns[p, c] != mask[k, c]:
-                    same = False
-                    break
-            if same:
+            if _same_feet(mask, arms, k, rep[p]):
                 found = p
                 break
         if found < 0:
-            patterns[count] = mask[k]
+            rep[count] = k
             found = count
             count += 1
         pid[k] = found
@@ -92,13 +119,13 @@ def structure(mask: np.ndarray, wrench: np.ndarray):
     da = np.zeros(count, dtype=np.int64)
     db = np.zeros(count, dtype=np.int64)
     for p in range(count):
-        cols = np.flatnonzero(patterns[p])
+        cols = np.flatnonzero(mask[rep[p]])
         n = cols.shape[0]
         if n == 0:
             continue
         sub = np.empty((6, n))
         for i in range(n):
-            sub[:, i] = wrench[:, cols[i]]
+            sub[:, i] = wrench[rep[p], :, cols[i]]
         _, s, vt = np.linalg.svd(sub)
         rank = 0
         for i in range(s.shape[0]):
@@ -128,6 +155,16 @@ def structure(mask: np.ndarray, wrench: np.ndarray):
 
 
 @njit(cache=True)
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Two 6 x 6 matrices are equal entry for entry (stops at the first difference)."""
+    for i in range(6):
+        for j in range(6):
+            if a[i, j] != b[i, j]:
+                return False
+    return True
+
+
+@njit(cache=True)
 def condense(
     a_c: np.ndarray,
     b_d: np.ndarray,
@@ -144,45 +181,100 @@ def condense(
     c0: np.ndarray,
     c1: np.ndarray,
     c2: np.ndarray,
+    same: np.ndarray,
 ):
     """Hessian H (na, na) and gradient f of the QP in the wrench coordinates a (states eliminated).
 
     0.5 a'Ha + f'a is the objective up to a constant (and a factor 2); the internal
     coordinates b only carry r |b|^2, so their Hessian is r I.
+
+    ``b_d`` (H, 12, 12) holds B_k per step. Forces enter the model only through the
+    wrench rows, so B_k = G W_k with W_k = B_k[6:12] and G = Gamma_T[:, 6:12] / T
+    fixed over the horizon (Gamma_T = I T + A_c T^2 / 2; A_c's rows 6:12 and B_c's
+    rows 0:6 are zero). With R_k = W_k V_k (6 x da) and C = T A_c G, the block (j, l)
+    of the condensed Hessian is R_j' [c0 G'QG + c1[j,l] G'QC + c1[l,j] C'QG + c2 C'QC] R_l:
+    three 6 x 6 Gram matrices per update, then one small product per pair of steps, or,
+    when few steps differ in R_k (one B for the horizon), R_g' S R_g' per pair of groups
+    and a weighted sum per pair of steps. ``same[k]``: B_k is step k-1's (R_k is then too,
+    within a class).
     """
     h = x_ref.shape[0]
     ta = period * a_c
-    if np.max(np.abs(ta @ ta)) != 0.0:
-        raise ValueError("condensing needs a nilpotent A_c (A_c @ A_c = 0)")
-    n_pat = basis.shape[0]
-    bt = np.zeros((n_pat, 12, 6))
-    ct = np.zeros((n_pat, 12, 6))
-    for p in range(n_pat):
-        d = da[p]
-        bt[p, :, :d] = b_d @ np.ascontiguousarray(basis[p, :, :d])
-        ct[p] = ta @ bt[p]
-    gram = np.zeros((n_pat, n_pat, 4, 6, 6))
-    for p in range(n_pat):
-        for p2 in range(n_pat):
-            qb = q.reshape(12, 1) * bt[p2]
-            qc = q.reshape(12, 1) * ct[p2]
-            gram[p, p2, 0] = bt[p].T @ qb
-            gram[p, p2, 1] = bt[p].T @ qc
-            gram[p, p2, 2] = ct[p].T @ qb
-            gram[p, p2, 3] = ct[p].T @ qc
+    if np.max(np.abs(ta @ ta)) != 0.0 or np.max(np.abs(a_c[6:12])) != 0.0:
+        raise ValueError("condensing needs a nilpotent A_c (A_c @ A_c = 0) with no state feeding the rates")
+    g_map = np.ascontiguousarray(np.eye(12)[:, 6:12] + 0.5 * ta[:, 6:12])
+    c_map = ta @ g_map
+    qg = q.reshape(12, 1) * g_map
+    qc = q.reshape(12, 1) * c_map
+    s00 = g_map.T @ qg
+    s01 = g_map.T @ qc
+    s10 = np.ascontiguousarray(s01.T)
+    s11 = c_map.T @ qc
+    # R_k, its columns past da zero; steps with the same R_k form a group (with one B for the horizon the
+    # groups are the contact patterns; walking with per-step arms, every step is its own)
+    r = np.zeros((h, 6, 6))
+    grp = np.zeros(h, dtype=np.int64)
+    first = np.zeros(h, dtype=np.int64)
+    n_grp = 0
+    for k in range(h):
+        if k > 0 and same[k] and pid[k] == pid[k - 1]:
+            r[k] = r[k - 1]
+            grp[k] = grp[k - 1]
+            continue
+        d = da[pid[k]]
+        r[k, :, :d] = np.ascontiguousarray(b_d[k, 6:12]) @ np.ascontiguousarray(basis[pid[k], :, :d])
+        grp[k] = -1
+        for g in range(n_grp):
+            if pid[first[g]] == pid[k] and _same(r[first[g]], r[k]):
+                grp[k] = g
+                break
+        if grp[k] < 0:
+            first[n_grp] = k
+            grp[k] = n_grp
+            n_grp += 1
     na = a_off[h]
     hess = np.zeros((na, na))
-    for j in range(h):
-        pj, dj, oj = pid[j], da[pid[j]], a_off[j]
-        for l in range(j, h):
-            pl, dl, ol = pid[l], da[pid[l]], a_off[l]
-            w0, w1, w2, w3 = c0[j, l], c1[j, l], c1[l, j], c2[j, l]
-            blk = gram[pj, pl]
-            for r in range(dj):
-                for c in range(dl):
-                    val = w0 * blk[0, r, c] + w1 * blk[1, r, c] + w2 * blk[2, r, c] + w3 * blk[3, r, c]
-                    hess[oj + r, ol + c] = val
-                    hess[ol + c, oj + r] = val
+    if 4 * n_grp * n_grp <= h * (h + 1) // 2:
+        # few groups: their four Gram matrices R_g' S R_g' once, then a weighted sum per pair of steps
+        gram = np.empty((n_grp, n_grp, 4, 6, 6))
+        for g in range(n_grp):
+            rg = np.ascontiguousarray(r[first[g]].T)
+            for g2 in range(n_grp):
+                r2 = r[first[g2]]
+                gram[g, g2, 0], gram[g, g2, 1] = rg @ (s00 @ r2), rg @ (s01 @ r2)
+                gram[g, g2, 2], gram[g, g2, 3] = rg @ (s10 @ r2), rg @ (s11 @ r2)
+        for j in range(h):
+            dj, oj = da[pid[j]], a_off[j]
+            for l in range(j, h):
+                dl, ol = da[pid[l]], a_off[l]
+                w0, w1, w2, w3 = c0[j, l], c1[j, l], c1[l, j], c2[j, l]
+                blk = gram[grp[j], grp[l]]
+                for a in range(dj):
+                    for c in range(dl):
+                        val = w0 * blk[0, a, c] + w1 * blk[1, a, c] + w2 * blk[2, a, c] + w3 * blk[3, a, c]
+                        hess[oj + a, ol + c] = val
+                        hess[ol + c, oj + a] = val
+    else:
+        # R_j' [weighted S] R_l for every pair, the S R_l once per step
+        t00, t01, t10, t11 = np.empty((h, 6, 6)), np.empty((h, 6, 6)), np.empty((h, 6, 6)), np.empty((h, 6, 6))
+        for k in range(h):
+            t00[k], t01[k], t10[k], t11[k] = s00 @ r[k], s01 @ r[k], s10 @ r[k], s11 @ r[k]
+        mid = np.empty((6, 6))
+        for j in range(h):
+            dj, oj = da[pid[j]], a_off[j]
+            for l in range(j, h):
+                dl, ol = da[pid[l]], a_off[l]
+                w0, w1, w2, w3 = c0[j, l], c1[j, l], c1[l, j], c2[j, l]
+                for m in range(6):
+                    for c in range(dl):
+                        mid[m, c] = w0 * t00[l, m, c] + w1 * t01[l, m, c] + w2 * t10[l, m, c] + w3 * t11[l, m, c]
+                for a in range(dj):
+                    for c in range(dl):
+                        acc = 0.0
+                        for m in range(6):
+                            acc += r[j, m, a] * mid[m, c]
+                        hess[oj + a, ol + c] = acc
+                        hess[ol + c, oj + a] = acc
     for i in range(na):
         hess[i, i] += rho
     # free response x_k = x0 + k (T A_c x0 + g) + k (k - 1) / 2 T A_c g, weighted errors w_k
@@ -197,8 +289,8 @@ def condense(
     for j in range(h - 1, -1, -1):
         s1 = s1 + s0
         s0 = s0 + werr[j]
-        p, d, o = pid[j], da[pid[j]], a_off[j]
-        grad[o : o + d] = (bt[p].T @ s0 + ct[p].T @ s1)[:d]
+        d, o = da[pid[j]], a_off[j]
+        grad[o : o + d] = (r[j].T @ (g_map.T @ s0 + c_map.T @ s1))[:d]
     return hess, grad
 
 
@@ -345,14 +437,14 @@ def build(
 ):
     """Everything a step needs before the solver, in one compiled call.
 
-    Model, kept forces, per-pattern bases, condensed Hessian H = L L' (Cholesky)
-    and the linear term L^-1 f of the solver's variables z = L' a, and the row layout.
+    Model (B_k per step from ``lever_arms`` (H, 4, 3)), kept forces, per-class
+    bases, condensed Hessian H = L L' (Cholesky) and the linear term L^-1 f of the
+    solver's variables z = L' a, and the row layout.
     """
-    a_c, b_c, g_c = _model(x, lever_arms, mass, inertia_inv, gravity)
-    a_d, b_d, g_d = _discretize(a_c, b_c, g_c, period)
+    a_c, a_d, b_d, g_d, same = _model_steps(x, lever_arms, mass, inertia_inv, gravity, period)
     mask, consistent = force_mask(mu, fz_min, fz_max)
-    pid, basis, da, db, a_off, b_off, rows = structure(mask, np.ascontiguousarray(b_d[6:12]))
-    hess, grad = condense(a_c, b_d, g_d, x, x_ref, q, rho, period, basis, da, pid, a_off, c0, c1, c2)
+    pid, basis, da, db, a_off, b_off, rows = structure(mask, np.ascontiguousarray(b_d[:, 6:12]), lever_arms)
+    hess, grad = condense(a_c, b_d, g_d, x, x_ref, q, rho, period, basis, da, pid, a_off, c0, c1, c2, same)
     chol = np.linalg.cholesky(hess) if hess.shape[0] else np.zeros((0, 0))
     lin = forward(chol, grad)
     layout = row_layout(mask, mu, fz_min, fz_max, weight, band, rows)

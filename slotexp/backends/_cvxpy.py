@@ -17,7 +17,16 @@ import numpy as np
 
 from ..config import MpcConfig, SolverConfig
 from ..gait import ContactPlan
-from ..mpc import N_INPUT, N_STATE, SUCCESS, DiscreteModel, MpcSolution, failed_solution, solution_from_inputs
+from ..mpc import (
+    N_INPUT,
+    N_STATE,
+    SUCCESS,
+    DiscreteModel,
+    MpcSolution,
+    failed_solution,
+    solution_from_inputs,
+    step_lever_arms,
+)
 from ._base import MpcBackend
 
 
@@ -78,10 +87,10 @@ class CvxpyMpc(MpcBackend):
             raise RuntimeError("MPC problem is not DPP-compliant; it would recompile every step")
 
     def set_model(self, x: np.ndarray, lever_arms: np.ndarray) -> DiscreteModel:
-        as_f64 = np.ascontiguousarray
+        """Set A, g and each step's B_k (lever arms (4, 3) or (H, 4, 3)) from state ``x``."""
         model = DiscreteModel(
-            as_f64(x, dtype=float),
-            as_f64(lever_arms, dtype=float),
+            np.ascontiguousarray(x, dtype=float),
+            step_lever_arms(lever_arms, self.cfg.horizon),
             self.mass,
             self.inertia_inv,
             self.gravity,
@@ -89,8 +98,8 @@ class CvxpyMpc(MpcBackend):
         )
         self.a.value = model.a
         self.g.value = model.g
-        for b in self.b:
-            b.value = model.b * self.force_unit
+        for b, b_k in zip(self.b, model.b):
+            b.value = b_k * self.force_unit
         return model
 
     def solve(self, x: np.ndarray, x_ref: np.ndarray, lever_arms: np.ndarray, plan: ContactPlan) -> MpcSolution:

@@ -2,10 +2,13 @@
 
 Formulation (same minimiser as the sparse QP of :mod:`slotexp.mpc`):
 
-1. **States eliminated.** x_k = x_free,k + sum_j A^(k-1-j) B u_j. Because A_c @ A_c
-   = 0, A_d^s = I + s T A_c exactly, so the condensed Hessian is a sum of four
-   Kronecker products with fixed scalar weights (``_condensing.horizon_coefficients``)
-   and costs four 6x6 products per step to build instead of a dense H x H product.
+1. **States eliminated.** x_k = x_free,k + sum_j A^(k-1-j) B_j u_j, with B_j each
+   step's input matrix (seed 001's footholds of step j, or one B for the whole
+   horizon). Because A_c @ A_c = 0, A_d^s = I + s T A_c exactly, and the forces
+   reach the states only through each step's 6-D wrench, B_j = G W_j with G fixed;
+   so the condensed Hessian is three fixed 6x6 Gram matrices weighted by scalars
+   (``_condensing.horizon_coefficients``) between each pair of steps' wrench maps,
+   instead of a dense H x H product of 12 x 12 blocks.
 2. **Forces that must be zero removed.** A component is dropped from the decision
    vector when its bounds force it to zero: f_z with fz_max = 0 (swing legs when
    ``gait.swing_contact=false``, the MIT-controller trick) and f_x, f_y with mu = 0
@@ -15,7 +18,9 @@ Formulation (same minimiser as the sparse QP of :mod:`slotexp.mpc`):
    per step, u_k = V_k [a_k; b_k], separates the wrench directions a (coupled
    across the horizon) from the internal-force directions b (null space of the
    wrench map, costed only by r |b|^2). The dense Hessian is then 6H x 6H instead
-   of 12H x 12H (8x less to factor), and the b block is r I.
+   of 12H x 12H (8x less to factor), and the b block is r I. V_k depends only on
+   which forces are kept and where the loaded feet are relative to each other, so
+   it is computed once per class of such steps (a few per horizon), not per step.
 4. **LDP form.** H_a = L L' is factored (LAPACK Cholesky inside a numba kernel) and
    the variables z = L' a given to DAQP with a diagonal Hessian (I for z, r I for
    b), so DAQP skips its own O(n^3) factorisation; a constraint row g'a + h'b
@@ -41,7 +46,7 @@ import numpy as np
 
 from ..config import MpcConfig, SolverConfig
 from ..gait import ContactPlan
-from ..mpc import MpcSolution, failed_solution, remaining, solution_from_rollout
+from ..mpc import MpcSolution, failed_solution, remaining, solution_from_rollout, step_lever_arms
 from . import BACKENDS
 from ._base import MpcBackend, single_threaded_blas
 from ._condensing import EQUALITY, INF, build, finish, horizon_coefficients, initial_rows, row_values, solver_rows
@@ -132,7 +137,7 @@ class CondensedMpc(MpcBackend):
                 infeasible,
             ) = build(
                 x,
-                as_f64(lever_arms, dtype=float),
+                step_lever_arms(lever_arms, self.cfg.horizon),
                 self.mass,
                 self.inertia_inv,
                 self.gravity,

@@ -8,7 +8,7 @@ g enter only the equality bounds: e_{k+1} - A e_k - B u_k = A x*_k + g - x*_{k+1
 
 The constraint matrix is built a single time with every entry that can ever be
 non-zero kept as a structural entry (also while its value is 0): A's attitude
-block (T E^-1, the only state-dependent part of A), every entry of B (lever arms
+block (T E^-1, the only state-dependent part of A), every entry of each step's B_k (lever arms
 and world inertia), and the friction-cone coefficients mu of every leg and step
 (swing or stance, even mu = 0). Each step then calls
 ``update(Ax=values, Ax_idx=positions)`` on that fixed pattern plus new bounds
@@ -34,7 +34,7 @@ from osqp.interface import SolverStatus
 
 from ..config import MpcConfig, SolverConfig
 from ..gait import ContactPlan
-from ..mpc import DiscreteModel, MpcSolution, failed_solution, remaining, solution_from_inputs
+from ..mpc import DiscreteModel, MpcSolution, failed_solution, remaining, solution_from_inputs, step_lever_arms
 from . import BACKENDS
 from ._base import MpcBackend
 
@@ -138,7 +138,7 @@ class OsqpMpc(MpcBackend):
                 for r, c in zip(ar, ac):
                     add(N * k + r, N * (k - 1) + c, 1, sr=r, sc=c)  # -A e_k
             for r, c in zip(br, bc):
-                add(N * k + r, nx + N * k + c, 2, sr=r, sc=c)  # -B u_k
+                add(N * k + r, nx + N * k + c, 2, sr=r, sc=c, step=k)  # -B_k u_k
         row = N * h
         fz_rows, le, ge, balance = [], [], [], []
         for k in range(h):
@@ -172,7 +172,7 @@ class OsqpMpc(MpcBackend):
         self.idx_var = np.concatenate([self.idx_a, self.idx_b, self.idx_mu]).astype(np.int32)
         sr, sc = np.asarray(src_r)[order], np.asarray(src_c)[order]
         self.a_src = (sr[self.idx_a], sc[self.idx_a])
-        self.b_src = (sr[self.idx_b], sc[self.idx_b])
+        self.b_src = (np.asarray(src_k)[order][self.idx_b], sr[self.idx_b], sc[self.idx_b])
         self.mu_src = (np.asarray(src_k)[order][self.idx_mu], np.asarray(src_leg)[order][self.idx_mu])
         self.mu_sign = np.asarray(sign)[order][self.idx_mu]
         self.fz_rows = np.asarray(fz_rows)
@@ -217,7 +217,7 @@ class OsqpMpc(MpcBackend):
         as_f64 = np.ascontiguousarray
         x, x_ref = as_f64(x, dtype=float), as_f64(x_ref, dtype=float)
         model = DiscreteModel(
-            x, as_f64(lever_arms, dtype=float), self.mass, self.inertia_inv, self.gravity, self.period
+            x, step_lever_arms(lever_arms, self.h), self.mass, self.inertia_inv, self.gravity, self.period
         )
         values = self._values(model, np.asarray(plan.mu, dtype=float))
         lower, upper = self._bounds(x, x_ref, model, plan)

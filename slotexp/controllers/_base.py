@@ -32,10 +32,14 @@ class MpcController:
         self.steps = 0
 
     def solve(
-        self, x: np.ndarray, x_ref: np.ndarray, feet: np.ndarray, plan: ContactPlan
+        self, x: np.ndarray, x_ref: np.ndarray, lever_arms: np.ndarray, plan: ContactPlan
     ) -> tuple[np.ndarray, MpcSolution, dict[str, float]]:
-        """The forces to apply (the plan's first, or the last feasible), the solution, and their violations."""
-        solution = self.mpc.solve(x, x_ref, feet - x[3:6], plan)
+        """The forces to apply (the plan's first, or the last feasible), the solution, and their violations.
+
+        ``lever_arms`` are the feet relative to the CoM: (4, 3) for one B over the
+        horizon, (H, 4, 3) for a B_k per step (:func:`slotexp.mpc.step_lever_arms`).
+        """
+        solution = self.mpc.solve(x, x_ref, lever_arms, plan)
         if solution.success:
             forces = solution.forces
             self.last_feasible = forces.copy()

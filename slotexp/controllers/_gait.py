@@ -60,7 +60,7 @@ class GaitController(MpcController):
             stance(self.style, self.command.parts, psi, self.top), cfg.gait, cfg.mpc.f_min_stance, cfg.mpc.f_max
         )
         x_ref = reference(x, t, cfg.gait, self.period, horizon, path_origin=self.origin)
-        forces, solution, violations = self.solve(x, x_ref, feet, plan)
+        forces, solution, violations = self.solve(x, x_ref, feet - x[3:6], plan)
         self.command_velocity, self.command_yaw_rate = self.velocity.copy(), self.yaw_rate  # what this step used
         gait = mix(self.style, self.command.parts, self.psi, self.top)
         tendon = gait + self.adjust(x, feet, forces, solution)

@@ -29,7 +29,7 @@ class PaperController(MpcController):
         horizon = self.cfg.mpc.horizon
         plan = contact_plan(self.gait.contacts(horizon), self.cfg.gait, self.cfg.mpc.f_min_stance, self.cfg.mpc.f_max)
         x_ref = reference(x, t, self.cfg.gait, self.period, horizon)
-        forces, solution, violations = self.solve(x, x_ref, feet, plan)
+        forces, solution, violations = self.solve(x, x_ref, feet - x[3:6], plan)
         self.gait.roll()
         gait = self.cfg.gait
         schedule = gait.tendon_amplitude_deg * tendon_profile(

@@ -7,14 +7,15 @@ Each MPC step:
 2. the footstep planner (seed 001, eqs. 19-28, :mod:`slotexp.footstep`) places each
    swing leg's foothold for its remaining swing time;
 3. the MPC plans ground-reaction forces with swing legs at zero force
-   (``gait.swing_contact=false``); the lever arms in B are the stance feet where
-   they stand and the swing feet where they will land;
+   (``gait.swing_contact=false``). Its B_k holds each step's footholds relative to
+   the CoM predicted for that step (seed 001, eq. 46; ``controller.footholds=horizon``):
+   a standing foot where it stands until it lifts, a swinging foot at its planned
+   target, and a foot that lifts and lands again within the horizon at the
+   foothold the planner gives for that landing (:meth:`RigidController.horizon_lever_arms`).
+   ``controller.footholds=current`` keeps one B: the feet now, relative to the CoM now;
 4. the plant gets a :class:`~slotexp.plants.LegCommand`: stance legs push with the
    MPC's first forces, swing legs follow seed 002's parabola from lift-off to the
    foothold under a Cartesian PD, both through the foot Jacobians.
-
-The prediction model holds one B over the horizon (as every backend here does),
-so a foot that lands and lifts again within the horizon keeps one lever arm.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from ..config import SlotConfig
 from ..footstep import footholds
 from ..gait import GaitMatrix, contact_plan
 from ..plants import LegCommand
-from ..reference import reference
+from ..reference import desired_path, reference
 from ..robot import RobotModel
 from . import CONTROLLERS, ControlStep
 from ._base import MpcController
@@ -67,13 +68,13 @@ class RigidController(MpcController):
         self.swing_duration = np.full(4, self.period)
         self.targets = np.zeros((4, 3))
         self.origin: np.ndarray | None = None  # where the desired path starts: the first measured position
+        self.lever_arms = np.zeros((cfg.mpc.horizon, 4, 3))  # what the last solve used, (H, 4, 3)
 
-    def plan_footholds(self, x: np.ndarray, t_remaining: np.ndarray) -> np.ndarray:
-        """World footholds (4, 3) on the ground for every leg, from the measured state ``x``."""
+    def local_footholds(self, x: np.ndarray, t_remaining: np.ndarray) -> np.ndarray:
+        """Footholds (4, 2) in the local frame (seed 001's eqs. 19-28), from the measured state ``x``."""
         gait = self.cfg.gait
-        rz = rot_z(x[2])[0:2, 0:2]
-        v_local = rz.T @ x[9:11]
-        local = footholds(
+        v_local = rot_z(x[2])[0:2, 0:2].T @ x[9:11]
+        return footholds(
             self.shoulders,
             self.t_stance,
             t_remaining,
@@ -84,9 +85,45 @@ class RigidController(MpcController):
             gait.height,
             self.cfg.sim.gravity,
         )
+
+    def plan_footholds(self, x: np.ndarray, t_remaining: np.ndarray) -> np.ndarray:
+        """World footholds (4, 3) on the ground for every leg, from the measured state ``x``."""
         out = np.zeros((4, 3))
-        out[:, 0:2] = x[3:5] + local @ rz.T
+        out[:, 0:2] = x[3:5] + self.local_footholds(x, t_remaining) @ rot_z(x[2])[0:2, 0:2].T
         return out
+
+    def horizon_lever_arms(self, x: np.ndarray, t: float, contacts: np.ndarray, feet: np.ndarray) -> np.ndarray:
+        """Seed 001's r_{k,i} (H, 4, 3): each step's footholds relative to the CoM predicted for that step.
+
+        The CoM is predicted along the reference from where it is now: the reference
+        velocity turned by the reference yaw rate, integrated from the measured
+        position (the height held). Footholds: a foot standing now stays where it
+        stands until it lifts; a swinging foot lands on its target (``self.targets``,
+        planned this step); a foot that lifts later in the horizon lands, at step j,
+        on the planner's foothold for a base at the pose predicted for j (shoulder,
+        symmetry, feedback and centrifugal terms turned by the predicted yaw; its
+        prediction term is that pose). A leg in swing at a step keeps its last
+        foothold there (its force is zero). ``contacts`` (H, 4) from the gait matrix.
+        """
+        gait = self.cfg.gait
+        h = contacts.shape[0]
+        tk = t + self.period * np.arange(h)
+        com = np.empty((h, 3))
+        com[:, 0:2] = x[3:5] + desired_path(np.zeros(2), gait, tk) - desired_path(np.zeros(2), gait, np.array([t]))
+        com[:, 2] = x[5]
+        yaw = x[2] + gait.yaw_rate * (tk - t)
+        offsets = self.local_footholds(x, np.zeros(4))  # eqs. 19-22: the same for every future landing
+        held = np.where(contacts[0][:, None], feet, self.targets)  # (4, 3) where each foot is or is going
+        world = np.empty((h, 4, 3))
+        for i in range(4):
+            world[:, i] = held[i]
+            lands = np.flatnonzero(contacts[1:, i] & ~contacts[:-1, i]) + 1
+            if not contacts[0, i]:
+                lands = lands[1:]  # the swing under way lands on its target
+            for k in lands:  # a swing that starts within the horizon lands on a new foothold
+                world[k:, i, 0:2] = com[k, 0:2] + rot_z(yaw[k])[0:2, 0:2] @ offsets[i]
+                world[k:, i, 2] = 0.0
+        return world - com[:, None, :]
 
     def step(self, t: float, x: np.ndarray, feet: np.ndarray) -> ControlStep:
         cfg = self.cfg
@@ -107,8 +144,11 @@ class RigidController(MpcController):
         # positions on the desired path (not from wherever the robot is): Q's position weights then hold the
         # robot to its path, so speed errors and pushes do not accumulate into drift
         x_ref = reference(x, t, cfg.gait, self.period, horizon, path_origin=self.origin)
-        arms = np.where(stance[:, None], feet, self.targets)
-        forces, solution, violations = self.solve(x, x_ref, arms, plan)
+        if cfg.controller.footholds == "horizon":
+            self.lever_arms = self.horizon_lever_arms(x, t, contacts[:horizon], feet)
+        else:
+            self.lever_arms[:] = np.where(stance[:, None], feet, self.targets) - x[3:6]
+        forces, solution, violations = self.solve(x, x_ref, self.lever_arms, plan)
         self.gait.roll()
         self.was_stance = stance
         self.steps += 1
@@ -122,6 +162,8 @@ class RigidController(MpcController):
             swing_height=self.swing_height,
             kp=self.kp,
             kd=self.kd,
+            swing_timing=cfg.robot.rigid.swing_timing,
+            swing_feedforward=cfg.robot.rigid.swing_feedforward,
         )
         return ControlStep(
             forces=forces,

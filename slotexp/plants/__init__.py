@@ -47,9 +47,11 @@ class LegCommand:
     Stance legs push with ``forces`` (4, 3), the MPC's ground-reaction forces
     (world frame); swing legs follow seed 002's parabola from ``swing_start`` to
     ``swing_target`` (world, foot contact points), lifted off at ``swing_t0`` for
-    ``swing_duration`` s, with a Cartesian PD (``kp``, ``kd``). Both become joint
-    torques through the foot Jacobian at every physics step, as a robot's
-    motor loop runs faster than its MPC.
+    ``swing_duration`` s, with a Cartesian PD (``kp``, ``kd``), timed by
+    ``swing_timing`` (:func:`slotexp.footstep.swing_point`) and, with
+    ``swing_feedforward``, the leg's inverse dynamics for the path's acceleration.
+    Both become joint torques through the foot Jacobian at every physics step, as
+    a robot's motor loop runs faster than its MPC.
     """
 
     forces: np.ndarray
@@ -61,6 +63,8 @@ class LegCommand:
     swing_height: float
     kp: np.ndarray  # (3,) N/m
     kd: np.ndarray  # (3,) N s/m
+    swing_timing: str = "smooth"  # "smooth" or "linear"
+    swing_feedforward: bool = True
 
     @classmethod
     def standing(cls, forces: np.ndarray) -> LegCommand:
