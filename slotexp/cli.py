@@ -538,7 +538,7 @@ def figures(
                     )
             for name in truncated:
                 typer.echo(f"warning: logs/{name} is truncated: its tables and figures cover what it holds", err=True)
-            meta = read_log(logs[0]).metadata
+            meta = read_log(logs[0], topics=()).metadata  # the metadata alone
             name = meta.get("run", {}).get("experiment")
             if name not in EXPERIMENTS.names():
                 fail(f"{logs[0]}: log metadata names no known experiment ({name!r})")

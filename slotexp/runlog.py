@@ -45,23 +45,24 @@ def _states(df: pd.DataFrame, n: int) -> np.ndarray:
     return df[cols].to_numpy(dtype=float)[:n]
 
 
+# the topics a RunData is built from; read_log decodes only these
+RUN_TOPICS = (
+    "/state",
+    "/state_measured",
+    "/reference",
+    "/cost",
+    "/mpc/stats",
+    "/constraints",
+    "/contact",
+    "/forces",
+    "/markers",
+)
+
+
 def load_run(path: str | Path) -> RunData:
     path = Path(path)
-    log: Log = read_log(path)
-    n = min(
-        len(log.topics.get(topic, []))
-        for topic in (
-            "/state",
-            "/state_measured",
-            "/reference",
-            "/cost",
-            "/mpc/stats",
-            "/constraints",
-            "/contact",
-            "/forces",
-            "/markers",
-        )
-    )
+    log: Log = read_log(path, RUN_TOPICS)
+    n = min(len(log.topics.get(topic, [])) for topic in RUN_TOPICS)
     stats = log["/mpc/stats"].iloc[:n].reset_index(drop=True)
     cons = log["/constraints"].iloc[:n].reset_index(drop=True)
     forces = log["/forces"][[f"applied.{i}.{j}" for i in range(4) for j in range(3)]].to_numpy(float)[:n]

@@ -99,7 +99,7 @@ def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
     paths = sorted((job / "logs").glob("*.mcap"))
     for path in paths:
         try:
-            log = read_log(path)
+            log = read_log(path, topics=("/mpc/stats",))
         except LogReadError as exc:
             raise UserError(f"{path}: {str(exc).splitlines()[0]}") from exc
         if log.truncated or "summary" not in log.metadata:  # killed, or stopped before its end

@@ -442,3 +442,28 @@ def test_outputs_are_replaced_whole_or_not_at_all(tmp_path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["table1.csv"]  # and no temporary is left
     write_text(target, "new\n")
     assert target.read_text() == "new\n"
+
+
+def test_the_fast_encoder_writes_what_the_checked_conversion_writes(tmp_path: Path) -> None:
+    # Messages are encoded by orjson; _to_json (the first message's schema, and any message orjson
+    # refuses) must give the same JSON, and a message orjson refuses is still logged or named.
+    import json
+
+    from slotexp.record import _encode, _to_json
+
+    grid = np.arange(12.0).reshape(3, 4)
+    messages = [
+        {"a": np.array([1.0, np.nan, -np.inf, 1e-5, 123456789.125]), "c": np.bool_(True)},
+        {"nested": {"k": (1, 2.5, None), "ints": np.arange(3, dtype=np.int64), "flags": np.array([True, False])}},
+        {"scalars": [np.int32(-4), np.float64("nan"), 7, "text"], "grid": grid},
+        {"strided": grid[:, 1], "sliced": grid.T},  # not C-contiguous: orjson refuses, the fallback converts
+        {1: "int key", "x": float("inf")},
+    ]
+    for message in messages:
+        assert json.loads(_encode(message, "/m")) == json.loads(json.dumps(_to_json(message, "/m")))
+    # a float32 is written at its own precision (the same float32 when read back), not widened first
+    assert np.float32(json.loads(_encode({"b": np.float32(0.1)}, "/m"))["b"]) == np.float32(0.1)
+    with Recorder(tmp_path / "e.mcap") as rec:
+        rec.write("/m", 0.0, {"x": 1.0})
+        with pytest.raises(TypeError, match="'/m.x'"):
+            rec.write("/m", 0.1, {"x": object()})

@@ -20,7 +20,7 @@ DRIFT_DISTANCE_M = 0.8  # as the simulate experiment's default: lateral drift ov
 def report(run_dir: Path, velocity: list[float], legs: list[str]) -> dict:
     """Write metrics.json, fig4_com.png and fig6_path.png for a hardware run directory."""
     result = write_report(run_dir, list(velocity), DRIFT_DISTANCE_M, list(legs))
-    meta = read_log(find_logs(run_dir)[0]).metadata
+    meta = read_log(find_logs(run_dir)[0], topics=()).metadata  # the metadata alone
     result["loop"] = {k: float(v) for k, v in meta.get("loop", {}).items()}
     result["stop_reason"] = meta.get("summary", {}).get("stop_reason", "")
     (run_dir / "metrics.json").write_text(json.dumps(result, indent=2))
