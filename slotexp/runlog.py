@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .errors import UserError
 from .mpc import CONSTRAINT_GROUPS
 from .record import Log, read_log
 
@@ -63,6 +64,9 @@ def load_run(path: str | Path) -> RunData:
     path = Path(path)
     log: Log = read_log(path, RUN_TOPICS)
     n = min(len(log.topics.get(topic, [])) for topic in RUN_TOPICS)
+    if n == 0:
+        what = "was cut off before its first whole chunk" if log.truncated else "holds no MPC step"
+        raise UserError(f"{path}: the log {what}: there is nothing to rebuild tables and figures from")
     stats = log["/mpc/stats"].iloc[:n].reset_index(drop=True)
     cons = log["/constraints"].iloc[:n].reset_index(drop=True)
     forces = log["/forces"][[f"applied.{i}.{j}" for i in range(4) for j in range(3)]].to_numpy(float)[:n]

@@ -675,6 +675,20 @@ def test_figures_and_summarize_say_which_logs_are_truncated(tmp_path: Path) -> N
     assert (job / "metrics.json").read_bytes() == metrics  # built from the complete log: kept
     forced = slot("figures", str(job), "--force", cwd=tmp_path)
     assert forced.returncode == 0 and "walk.mcap is truncated" in forced.stderr, forced.stderr
+    other = sorted(p for p in sweep.iterdir() if p.is_dir())[1] / "logs" / "walk.mcap"
+    head = other.read_bytes()
+    # killed after the run's metadata but before its first chunk was written: no step to rebuild from
+    for cut in range(1000, len(head), 1000):
+        other.write_bytes(head[:cut])
+        if read_log(other).metadata.get("run"):
+            break
+    assert not read_log(other).topics
+    empty = slot("figures", str(other.parent.parent), "--force", cwd=tmp_path)
+    assert empty.returncode == 2 and "Traceback" not in empty.stderr, empty.stderr
+    warning, error = empty.stderr.strip().splitlines()  # the truncation warning, then one line of error
+    assert "walk.mcap is truncated" in warning
+    assert error.startswith("error: ") and "first whole chunk" in error and "nothing to rebuild" in error, error
+    other.write_bytes(head)
     summary = slot("summarize", str(sweep), cwd=tmp_path)
     assert summary.returncode == 0, summary.stderr
     assert f"warning: {job.name}: logs incomplete: walk.mcap" in summary.stderr
