@@ -60,11 +60,6 @@ def _loaded_leg(cfg: SlotConfig, jacobian_age: int = 1) -> LegSim:
     return sim
 
 
-def _factorisations(sim: LegSim) -> float:
-    """How many Jacobians the implicit step has factored (:func:`slotexp.soft.integrators.jacobian_state`)."""
-    return float(sim.jacobian[3][sim.model.n_nodes + 4])
-
-
 def _time_steps(sim: LegSim, h: float, integrator: str, blocks: int, per_block: int) -> tuple[np.ndarray, float]:
     """Per-step times (s) of ``blocks`` blocks, and the first call's time (compile or cache load)."""
     start = time.perf_counter()
@@ -160,10 +155,10 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     for label, name, h, per_block, jac_age in variants:
         leg = _loaded_leg(cfg, jac_age)
         leg.step(h, int(round(0.5 / h)), name)  # settle into stance first
-        before = _factorisations(leg)
+        before = leg.factorisations
         timings[label] = (name, h, jac_age) + _time_steps(leg, h, name, 60, per_block)
         timed = 1 + 60 * per_block
-        timings[label] += ((_factorisations(leg) - before) / timed if name == "implicit" else float("nan"),)
+        timings[label] += ((leg.factorisations - before) / timed if name == "implicit" else float("nan"),)
     h_ref = h_sym / 10
     tip_ref = _tip_after_transient(cfg, h_ref, "symplectic")
     rows: list[BenchRow] = []

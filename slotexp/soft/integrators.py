@@ -66,6 +66,11 @@ from .rod import (
     elastic_hessian_cs,
 )
 
+# The implicit step's Jacobian bookkeeping ``jmeta`` (:func:`jacobian_state`): each node's contact regime (N
+# entries), then these, counted from N: the cable's state, the factorisation's age in steps, 1 + g^T W^-1 u,
+# the step it was made with, and how many factorisations the leg has made.
+J_CABLE, J_AGE, J_GZ, J_STEP, J_COUNT = range(5)
+
 
 @njit(cache=True)
 def _set_root(pos, vel, root):
@@ -313,9 +318,9 @@ def implicit_once(
     ``vflat`` are work arrays (3N - 1).
 
     The factored W and h^2 K are the leg's own state: ``lu``, ``kband``; ``jvec`` = the
-    tendon's W^-1 u and grad L; ``jmeta`` = each node's contact regime, the cable's state
-    (slack, taut, at the stall), the factorisation's age in steps, 1 + g^T W^-1 u, its step,
-    and a count of factorisations. They are refreshed when the step changes, a node's
+    tendon's W^-1 u and grad L; ``jmeta`` = each node's contact regime, then the entries
+    ``J_*`` (the cable's state: slack, taut or at the stall; the age; 1 + g^T W^-1 u; the
+    step; the count of factorisations). They are refreshed when the step changes, a node's
     contact regime or the cable's state changes, or they are ``max_age`` steps old.
     ``max_age`` = 1 is the exact linearly implicit Euler step; with larger ages the
     Jacobians are those of up to ``max_age`` - 1 steps earlier (a W-method: still
@@ -351,8 +356,8 @@ def implicit_once(
     root_reaction(force, m_root, mass, par, out)
     taut = tension > 0.0 and tension < par[P_TMAX]
     cable = 0.0 if tension <= 0.0 else (1.0 if taut else 2.0)  # slack, taut, at the servo's stall
-    i_cable, i_age, i_gz, i_h = n, n + 1, n + 2, n + 3
-    fresh = jmeta[i_age] >= max_age or jmeta[i_h] != h or jmeta[i_cable] != cable
+    i_cable, i_age, i_gz, i_step = n + J_CABLE, n + J_AGE, n + J_GZ, n + J_STEP
+    fresh = jmeta[i_age] >= max_age or jmeta[i_step] != h or jmeta[i_cable] != cable
     # the velocity-dependent forces at the start of the step: damping towards the root, contact
     for i in range(n):
         for comp in range(2):
@@ -386,16 +391,13 @@ def implicit_once(
         g[:] = 0.0
         if tension > 0.0:
             tendon_jacobian(pos, cth, sth, tension, par, h2, kband, g)
-        jmeta[0] = 0.0
         for i in range(1, n):
             regime = 0
             if ground and pos[i, 1] < 0.0:
                 nrm, _, sat, regime = contact_force(-pos[i, 1], vel[i, 0], vel[i, 1], k_c, d_c, mu, v_eps)
                 contact_jacobian(i, nrm, sat, regime, h, k_c, d_c, mu, v_eps, kband, lu)
             jmeta[i] = regime
-        for d in range(nd):
-            for k in range(9):
-                lu[d, k] += kband[d, k]
+        lu += kband
         for i in range(n):
             lu[3 * i, 4] += mass[i] * (1.0 + h * c)
             lu[3 * i + 1, 4] += mass[i] * (1.0 + h * c)
@@ -419,9 +421,9 @@ def implicit_once(
                 gz += g[d] * smu[d]
             jmeta[i_gz] = gz
         jmeta[i_cable] = cable
-        jmeta[i_h] = h
+        jmeta[i_step] = h
         jmeta[i_age] = 0.0
-        jmeta[n + 4] += 1.0
+        jmeta[n + J_COUNT] += 1.0
     jmeta[i_age] += 1.0
     # - h^2 K v, with the K the factorisation was made with
     banded_multiply_subtract(kband, vflat, rhs)
@@ -487,8 +489,8 @@ def jacobian_state(n_nodes: int, legs: int | None = None) -> tuple[np.ndarray, .
     first step factors. (lu, kband, jvec, jmeta)."""
     nd = 3 * n_nodes - 1
     lead = () if legs is None else (legs,)
-    meta = np.zeros(lead + (n_nodes + 5,))
-    meta[..., n_nodes + 1] = np.inf  # age: refresh at the first step
+    meta = np.zeros(lead + (n_nodes + J_COUNT + 1,))
+    meta[..., n_nodes + J_AGE] = np.inf  # refresh at the first step
     return np.zeros(lead + (nd, 9)), np.zeros(lead + (nd, 9)), np.zeros(lead + (2, nd)), meta
 
 
@@ -664,6 +666,11 @@ class LegSim:
         self.time = 0.0
         self.jacobian_age = 1  # steps the implicit step may reuse its factored Jacobian (1: none)
         self.jacobian = jacobian_state(model.n_nodes)
+
+    @property
+    def factorisations(self) -> int:
+        """How many Jacobians the implicit step has factored for this leg."""
+        return int(self.jacobian[3][self.model.n_nodes + J_COUNT])
 
     def step(self, h: float, n_steps: int = 1, integrator: str = "symplectic") -> None:
         m = self.model
