@@ -456,7 +456,7 @@ class CosseratPlant:
             *jacobian_state(n, 4),
         )
         self.marker_nodes = sorted({0, (n - 1) // 3, 2 * (n - 1) // 3, n - 1})
-        self._steps_done, self._legs_at, self._legs = 0, -1, np.empty((4, n, 3))
+        self._legs: np.ndarray | None = None  # leg_world's, until the legs next move
         self._settle_legs(SETTLE_S)
 
     # ------------------------------------------------------------------ Plant interface
@@ -481,12 +481,12 @@ class CosseratPlant:
     def leg_world(self) -> np.ndarray:
         """Every node of every leg in the world frame (4, N, 3), read-only: computed once per plant step
         (the controller's feet, the log's markers, shapes and 3D scene all read it)."""
-        if self._legs_at != self._steps_done:
+        if self._legs is None:
             corners, u = self._plane()
             out = corners[:, None, :] + self.pos[:, :, 0:1] * u[:, None, :]
             out[:, :, 2] = self.pos[:, :, 1]
             out.flags.writeable = False
-            self._legs, self._legs_at = out, self._steps_done
+            self._legs = out
         return self._legs
 
     def feet(self) -> np.ndarray:
@@ -623,7 +623,7 @@ class CosseratPlant:
     def _advanced(self, done: int, n: int, h: float, what: str, loads: str) -> None:
         """Count ``done`` of ``n`` steps of ``h``; a run cut short or gone non-finite diverged."""
         self.time += done * h
-        self._steps_done += 1  # the legs moved: leg_world's cache is stale
+        self._legs = None  # the legs moved
         if done < n or not np.all(np.isfinite(self.torso)):
             limit = stable_dt(self.model, self.cfg.robot.contact.stiffness)
             raise DivergenceError(
