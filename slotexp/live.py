@@ -11,7 +11,6 @@ microseconds per topic. :class:`slotexp.simulation.Tee` sends one step to both t
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -24,6 +23,8 @@ from .record import (
     _RESERVED_FIELD,
     POSE_TOPIC,
     TF_TOPIC,
+    _dumps,
+    _encode,
     _schema_for,
     _schema_name,
     _time_ns,
@@ -62,7 +63,7 @@ class LiveView:
         if chan is None:
             chan = foxglove.Channel(
                 topic,
-                schema=foxglove.Schema(name=schema_name, encoding="jsonschema", data=json.dumps(schema).encode()),
+                schema=foxglove.Schema(name=schema_name, encoding="jsonschema", data=_dumps(schema)),
                 message_encoding="json",
                 context=self._context,
             )
@@ -76,11 +77,10 @@ class LiveView:
             return
         if _RESERVED_FIELD in message:
             raise ValueError(f"message field {_RESERVED_FIELD!r} on {topic} is reserved for the log time column")
-        payload = _to_json(message, topic)
-        if chan is None:
-            chan = self._json_channel(topic, _schema_name(topic), _schema_for(payload))
+        if chan is None:  # the first message fixes the schema, as in the log
+            chan = self._json_channel(topic, _schema_name(topic), _schema_for(_to_json(message, topic)))
         if chan.has_sinks():
-            chan.log(json.dumps(payload, separators=(",", ":")).encode(), log_time=_time_ns(t))
+            chan.log(_encode(message, topic), log_time=_time_ns(t))
 
     def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None:
         pose = [self._channels.get(topic) for topic in (POSE_TOPIC, TF_TOPIC)]
@@ -89,7 +89,7 @@ class LiveView:
         for topic, schema_name, schema, payload in pose_messages(t, position, quaternion_wxyz):
             chan = self._json_channel(topic, schema_name, schema)
             if chan.has_sinks():
-                chan.log(json.dumps(payload, separators=(",", ":")).encode(), log_time=_time_ns(t))
+                chan.log(_dumps(payload), log_time=_time_ns(t))
 
     def write_encoded(self, topic: str, t: float, schema: foxglove.Schema, data: bytes) -> None:
         """Publish a protobuf-encoded message (the scene, as in the log) with its ``foxglove.Schema``."""
