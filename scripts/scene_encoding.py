@@ -2,8 +2,8 @@
 
     python scripts/scene_encoding.py experiments/simulate/<timestamp>/logs/walk.mcap
 
-The JSON copy holds the same messages: every protobuf message on ``/scene`` and
-``/transforms`` decoded with the schema stored in the log and written as JSON in
+The JSON copy holds the same messages: every protobuf message (``/scene``, the two
+paths' topics and ``/transforms``) decoded with the schema stored in the log and written as JSON in
 Foxglove's JSON layout (field names as in the schema, timestamps and durations as
 ``{sec, nsec}``), under the SDK's schema names with a ``jsonschema`` of the right type,
 in a file with the same chunk size and compression. It prints file sizes, the time of
@@ -26,7 +26,7 @@ from google.protobuf.json_format import MessageToDict
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-SCENE_TOPICS = ("/scene", "/transforms")
+from slotexp.foxglove_scene import schemas
 
 
 def message_class(name: str, data: bytes):
@@ -95,7 +95,7 @@ def decode_scene(path: Path) -> float:
         reader = make_reader(f)
         start = time.perf_counter()
         classes = {}
-        for schema, channel, message in reader.iter_messages(topics=list(SCENE_TOPICS)):
+        for schema, channel, message in reader.iter_messages(topics=list(schemas())):
             if channel.message_encoding == "protobuf":
                 cls = classes.get(channel.id) or classes.setdefault(channel.id, message_class(schema.name, schema.data))
                 cls.FromString(message.data)

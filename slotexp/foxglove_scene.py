@@ -1,4 +1,5 @@
-"""A :class:`~slotexp.scene.SceneFrame` as Foxglove's own message types, in the schemas of ``foxglove-sdk``.
+"""A :class:`~slotexp.scene.SceneFrame` and the torso's transform as Foxglove's own message types, in the
+schemas of ``foxglove-sdk``.
 
 The schemas are the SDK's (``SceneUpdate.get_schema()``: Foxglove's protobuf descriptor
 set), so the log and the live server carry messages every Foxglove panel reads, with no
@@ -15,10 +16,20 @@ Topics:
   (a line strip through every node, root to foot), ``force/<name>`` (an arrow, see
   :mod:`slotexp.scene` for the scale), ``feet`` (a sphere per foot), ``footholds``
   (a flat disc per planned foothold, when the controller plans them: the rigid
-  quadruped), ``path/reference`` and ``path/actual`` (line strips). Each message
-  replaces every entity, so any one message draws the whole scene (a seek in
-  Foxglove needs only the last one).
-- ``/transforms`` (``foxglove.FrameTransforms``): world -> torso.
+  quadruped). Each message replaces every entity, so any one message draws the
+  whole robot.
+- ``/scene/reference_path`` and ``/scene/actual_path`` (``foxglove.SceneUpdate``):
+  one entity each, ``path/reference`` and ``path/actual`` (a line strip), written
+  only at the steps where the path gained a point (:class:`slotexp.scene.SceneTrack`
+  keeps one per 5 mm travelled, up to 500). A path is most of the scene's bytes
+  (29 bytes a point, up to 14.5 kB) and changes on one step in several on a walk,
+  so it has its own topic instead of being resent with every step's robot. A seek
+  in Foxglove shows each topic's last message before that time, so a log needs no
+  more; the live view also resends each path every ``LIVE_PATH_REFRESH_S`` (1 s)
+  for a client that connects while the robot stands still.
+- ``/transforms`` (``foxglove.FrameTransforms``): world -> torso, written with the pose
+  (``write_pose``) by every log and live view, with or without the scene
+  (:class:`TransformEncoder`).
 """
 
 from __future__ import annotations
@@ -31,13 +42,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .scene import SceneFrame
+from .jit import njit
 
 if TYPE_CHECKING:
     from foxglove import Schema
 
+    from .scene import SceneFrame
+
 SCENE_TOPIC = "/scene"
+PATH_TOPICS = {"reference": "/scene/reference_path", "actual": "/scene/actual_path"}
 TRANSFORMS_TOPIC = "/transforms"
+SCENE_TOPICS = (SCENE_TOPIC, *PATH_TOPICS.values())  # what write_scene writes (the transform comes with the pose)
+LIVE_PATH_REFRESH_S = 1.0  # the live view resends an unchanged path this often (a client may join any time)
 WORLD_FRAME = "world"
 TORSO_FRAME = "torso"
 LINE_THICKNESS_M = 0.003
@@ -68,7 +84,9 @@ def schemas() -> dict[str, Schema]:
     """Each topic's ``foxglove.Schema`` (name, encoding ``protobuf``, descriptor set), from the SDK."""
     from foxglove.messages import FrameTransforms, SceneUpdate
 
-    return {SCENE_TOPIC: SceneUpdate.get_schema(), TRANSFORMS_TOPIC: FrameTransforms.get_schema()}
+    scene = SceneUpdate.get_schema()
+    paths = {topic: scene for topic in PATH_TOPICS.values()}
+    return {SCENE_TOPIC: scene, **paths, TRANSFORMS_TOPIC: FrameTransforms.get_schema()}
 
 
 def timestamp_ns(t: float) -> tuple[int, int]:
@@ -192,12 +210,97 @@ def _entity(stamp: bytes, body: bytes | memoryview) -> list[bytes | memoryview]:
 # --------------------------------------------------------------------------- the scene
 
 
+class _Template:
+    """Encoded fields in one writable buffer; :meth:`fill` writes a step's float64 values into the slots."""
+
+    def __init__(self, piece: _Piece) -> None:
+        self.buffer = np.frombuffer(bytearray(piece.data), dtype=np.uint8)
+        self.slots = np.array(piece.slots, dtype=np.intp)
+        self._value_bytes = (self.slots[:, None] + np.arange(8)).ravel()
+
+    def fill(self, values: np.ndarray) -> None:
+        """Write this step's numbers (float64, in the slots' order) into place."""
+        self.buffer[self._value_bytes] = values.view(np.uint8)
+
+
+class TransformEncoder:
+    """The torso's pose as a ``foxglove.FrameTransforms`` message holding one transform, parent -> child."""
+
+    def __init__(self) -> None:
+        self._bodies: dict[tuple[str, str], tuple[_Template, memoryview]] = {}
+
+    def message(
+        self,
+        t: float,
+        position: np.ndarray,
+        quaternion_wxyz: np.ndarray,
+        parent: str = WORLD_FRAME,
+        child: str = TORSO_FRAME,
+    ) -> bytes:
+        """The message at ``t``: ``position`` (3,) and ``quaternion_wxyz`` (4,), float arrays."""
+        body = self._bodies.get((parent, child))
+        if body is None:
+            fields = _join([_string(2, parent), _string(3, child), _nested(4, _XYZ), _nested(5, _XYZW)])
+            template = _Template(fields)
+            body = self._bodies[(parent, child)] = (template, memoryview(template.buffer))  # type: ignore[arg-type]
+        template, view = body
+        q = quaternion_wxyz
+        template.fill(np.concatenate((position, q[1:4], q[:1]), dtype="<f8"))  # Foxglove's x, y, z, w
+        stamp = _stamp_field(t)
+        return b"".join((_TRANSFORM_KEY, _varint(len(stamp) + len(view)), stamp, view))
+
+
+_NO_POINTS = np.empty((0, 3))  # the footholds of a controller that plans none
+
+
+@njit(cache=True)
+def _put_rows(values: np.ndarray, k: int, rows: np.ndarray) -> int:
+    """Copy ``rows`` (n, m) into ``values`` from ``k`` on, row by row; the index after them."""
+    for i in range(rows.shape[0]):
+        for a in range(rows.shape[1]):
+            values[k] = rows[i, a]
+            k += 1
+    return k
+
+
+@njit(cache=True)
+def _fill_scene(
+    buffer: np.ndarray,
+    slots: np.ndarray,
+    position: np.ndarray,
+    quaternion_wxyz: np.ndarray,
+    torso_size: np.ndarray,
+    legs: np.ndarray,
+    arrows: np.ndarray,
+    feet: np.ndarray,
+    footholds: np.ndarray,
+) -> None:
+    """Write a step's numbers as float64 into ``buffer`` at the byte offsets ``slots``, in :class:`_Layout`'s
+    order. Compiled: gathering the arrays and scattering their bytes was most of a step's encoding."""
+    if 10 + legs.size + arrows.size + feet.size + footholds.size != slots.shape[0]:
+        raise ValueError("the scene's arrays do not match its layout")
+    values = np.empty(slots.shape[0])
+    values[0:3] = position
+    values[3:6] = quaternion_wxyz[1:4]  # Foxglove's x, y, z, w
+    values[6] = quaternion_wxyz[0]
+    values[7:10] = torso_size
+    k = 10
+    for i in range(legs.shape[0]):
+        k = _put_rows(values, k, legs[i])
+    k = _put_rows(values, k, arrows)
+    k = _put_rows(values, k, feet)
+    _put_rows(values, k, footholds)
+    raw = values.view(np.uint8)
+    for i in range(slots.shape[0]):
+        for b in range(8):
+            buffer[slots[i] + b] = raw[8 * i + b]
+
+
 class _Layout:
-    """One run's fixed messages in one buffer: every entity but the paths (each entity's fields after its
-    timestamp), then the one FrameTransform's. Each step writes all their numbers with one numpy
-    assignment, in the order laid out: the torso's pose and size, the legs' nodes, each arrow (tail,
-    orientation, shaft and head length), the feet, the footholds, the transform's pose. Only the
-    timestamps' lengths change a message's length, and so its header."""
+    """One run's ``/scene`` in one buffer: every entity's fields after its timestamp. Each step writes all
+    their numbers (:func:`_fill_scene`) in the order laid out: the torso's pose and size, the legs' nodes,
+    each arrow (tail, orientation, shaft and head length), the feet, the footholds. Only the timestamp's
+    length changes the message's length, and so the entities' headers."""
 
     def __init__(self, leg_names: tuple[str, ...], n_nodes: int, footholds: bool) -> None:
         self.key = (leg_names, n_nodes, footholds)
@@ -219,19 +322,12 @@ class _Layout:
         bodies.append(_entity_body("feet", _spheres(n, (FOOT_DIAMETER_M,) * 3, FOOT_COLOR)))
         if footholds:
             bodies.append(_entity_body("footholds", _spheres(n, FOOTHOLD_SIZE_M, FOOTHOLD_COLOR)))
-        transform = _join([_string(2, WORLD_FRAME), _string(3, TORSO_FRAME), _nested(4, _XYZ), _nested(5, _XYZW)])
-        whole = _join([*bodies, transform])
-        self._buffer = np.frombuffer(bytearray(whole.data), dtype=np.uint8)
-        self._value_bytes = (np.array(whole.slots, dtype=np.intp)[:, None] + np.arange(8)).ravel()
-        view = memoryview(self._buffer)  # type: ignore[arg-type]
-        ends = np.cumsum([len(b.data) for b in (*bodies, transform)]).tolist()
-        spans = [view[a:b] for a, b in zip([0, *ends], ends)]  # they follow the buffer's numbers
-        self._bodies, self.transform = spans[:-1], spans[-1]
+        template = _Template(_join(bodies))
+        self.buffer, self.slots = template.buffer, template.slots
+        view = memoryview(self.buffer)  # type: ignore[arg-type]
+        ends = np.cumsum([len(b.data) for b in bodies]).tolist()
+        self._bodies = [view[a:b] for a, b in zip([0, *ends], ends)]  # they follow the buffer's numbers
         self._parts: list[bytes | memoryview] = []
-
-    def fill(self, values: np.ndarray) -> None:
-        """Write this step's numbers (float64, in the layout's order) into place."""
-        self._buffer[self._value_bytes] = values.view(np.uint8)
 
     def entities(self, stamp: bytes) -> list[bytes | memoryview]:
         """The fixed entities as SceneUpdate fields, stamped, with the numbers last written."""
@@ -242,20 +338,22 @@ class _Layout:
         return self._parts
 
 
-class _PathEntity:
-    """A path's entity, rebuilt only when the path gained a point (:class:`slotexp.scene.SceneTrack`
-    returns the same array until then): it keeps the timestamp of the step it changed. On a walk
-    that is every other step, so the points' bytes are written into rows kept from one rebuild to
-    the next (their keys and lengths already in place)."""
+class _PathMessage:
+    """A path's message (a SceneUpdate of one entity), made only when the path gained a point
+    (:class:`slotexp.scene.SceneTrack` returns the same array until then) or, with ``refresh_s``,
+    once that much frame time has passed since it was last made. The points' bytes are written
+    into rows kept from one message to the next (their keys and lengths already in place)."""
 
-    def __init__(self, key: str, color: RGBA) -> None:
+    def __init__(self, key: str, color: RGBA, refresh_s: float | None) -> None:
+        self.topic = PATH_TOPICS[key]
+        self._refresh_s = refresh_s
+        self._made_at = 0.0
         self._head = _entity_body(f"path/{key}").data + _key(11, _LEN)
         self._thickness = _double(3, LINE_THICKNESS_M).data
         self._color = _nested(6, _doubles(color)).data
         self._source: np.ndarray | None = None
         self._rows = np.empty((0, len(_POINT_ROW)), dtype=np.uint8)
         self._xyz = np.empty((0, 3))
-        self.parts: list[bytes | memoryview] = []
 
     def _points(self, path: np.ndarray) -> bytes:
         """LinePrimitive.points (field 5) through ``path`` (k, 3)."""
@@ -267,23 +365,29 @@ class _PathEntity:
         self._xyz[:n] = path
         return self._rows[:n].tobytes()
 
-    def update(self, path: np.ndarray, stamp: bytes) -> list[bytes | memoryview]:
-        if path is not self._source:
-            points = self._points(path)
-            line = _varint(len(self._thickness) + len(points) + len(self._color))
-            body = b"".join((self._head, line, self._thickness, points, self._color))
-            self.parts = _entity(stamp, body)
-            self._source = path
-        return self.parts
+    def message(self, path: np.ndarray, t: float, stamp: bytes) -> bytes | None:
+        """The path's SceneUpdate at ``t``, or None where the last one made still shows it."""
+        fresh = self._refresh_s is None or abs(t - self._made_at) < self._refresh_s
+        if path is self._source and fresh:
+            return None
+        points = self._points(path)
+        line = _varint(len(self._thickness) + len(points) + len(self._color))
+        body = b"".join((self._head, line, self._thickness, points, self._color))
+        self._source, self._made_at = path, t
+        return b"".join(_entity(stamp, body))
 
 
 class SceneEncoder:
-    """Turns a run's frames, one step after another, into (topic, encoded message) pairs, ``/transforms``
-    first; :func:`schemas` gives each topic's schema."""
+    """Turns a run's frames, one step after another, into (topic, encoded message) pairs: ``/scene``, then
+    each path whose message is due (it changed; with ``path_refresh_s``, the live
+    view's, also that long after it was last sent). :func:`schemas` gives each topic's schema."""
 
-    def __init__(self) -> None:
+    def __init__(self, path_refresh_s: float | None = None) -> None:
         self._layout: _Layout | None = None
-        self._paths = (_PathEntity("reference", REFERENCE_COLOR), _PathEntity("actual", ACTUAL_COLOR))
+        self._paths = (
+            _PathMessage("reference", REFERENCE_COLOR, path_refresh_s),
+            _PathMessage("actual", ACTUAL_COLOR, path_refresh_s),
+        )
 
     def messages(self, frame: SceneFrame) -> list[tuple[str, bytes]]:
         """(topic, protobuf bytes) of one step's scene, in the order they are written."""
@@ -291,16 +395,35 @@ class SceneEncoder:
         layout = self._layout
         if layout is None or layout.key != key:
             layout = self._layout = _Layout(*key)
-        q = frame.quaternion_wxyz
-        pose = (frame.position, q[1:4], q[:1])  # x, y, z, then the quaternion as x, y, z, w
-        holds = () if frame.footholds is None else (frame.footholds,)
-        values = (*pose, frame.torso_size, frame.legs, frame.arrows, frame.feet, *holds, *pose)
-        layout.fill(np.concatenate(values, axis=None, dtype="<f8"))  # each array flattened, row by row
+        holds = _NO_POINTS if frame.footholds is None else frame.footholds
+        _fill_scene(
+            layout.buffer,
+            layout.slots,
+            frame.position,
+            frame.quaternion_wxyz,
+            frame.torso_size,
+            frame.legs,
+            frame.arrows,
+            frame.feet,
+            holds,
+        )
         stamp = _stamp_field(frame.t)
-        parts = [*layout.entities(stamp), *self._paths[0].update(frame.reference_path, stamp)]
-        parts += self._paths[1].update(frame.actual_path, stamp)
-        transform = (_TRANSFORM_KEY, _varint(len(stamp) + len(layout.transform)), stamp, layout.transform)
-        return [(TRANSFORMS_TOPIC, b"".join(transform)), (SCENE_TOPIC, b"".join(parts))]
+        out = [(SCENE_TOPIC, b"".join(layout.entities(stamp)))]
+        for encoder, path in zip(self._paths, (frame.reference_path, frame.actual_path)):
+            data = encoder.message(path, frame.t, stamp)
+            if data is not None:
+                out.append((encoder.topic, data))
+        return out
 
 
-__all__ = ["SCENE_TOPIC", "TRANSFORMS_TOPIC", "SceneEncoder", "schemas", "timestamp_ns"]
+__all__ = [
+    "SCENE_TOPIC",
+    "PATH_TOPICS",
+    "TRANSFORMS_TOPIC",
+    "LIVE_PATH_REFRESH_S",
+    "SCENE_TOPICS",
+    "SceneEncoder",
+    "TransformEncoder",
+    "schemas",
+    "timestamp_ns",
+]

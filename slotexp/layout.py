@@ -2,8 +2,8 @@
 
 Built with ``foxglove-sdk``'s layout types (:mod:`foxglove.layouts`), so the file is in the
 format the Foxglove app imports (*Layouts -> Import from file*). It shows:
-- a 3D panel following the torso, with ``/scene`` (legs, force arrows, torso, paths) and
-  ``/transforms``;
+- a 3D panel following the torso, with ``/scene`` (legs, force arrows, torso), the two
+  paths' topics and ``/transforms``;
 - the CoM against the reference (x, y, z);
 - the stage cost;
 - the tendon angles (the commands ``/tendon``, and the soft plant's servo angles ``/legs/tendon``);
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import foxglove.layouts as fl
 
-from .foxglove_scene import SCENE_TOPIC, TORSO_FRAME, WORLD_FRAME
+from .foxglove_scene import PATH_TOPICS, SCENE_TOPIC, TORSO_FRAME, WORLD_FRAME
 
 SHIPPED = Path(__file__).resolve().parent / "layouts" / "slot.json"
 LEGS = ("FL", "RL", "RR", "FR")  # the paper's leg order, as logged
@@ -51,7 +51,8 @@ def build_layout() -> fl.Layout:
             fixed_frame=WORLD_FRAME,
             follow_mode="follow-position",
             topics={
-                SCENE_TOPIC: fl.BaseRendererSceneUpdateTopicSettings(visible=True),
+                topic: fl.BaseRendererSceneUpdateTopicSettings(visible=True)
+                for topic in (SCENE_TOPIC, *PATH_TOPICS.values())
             },
         ),
     )

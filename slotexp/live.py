@@ -18,18 +18,18 @@ from typing import Any
 import foxglove
 
 from .errors import ConfigError
-from .foxglove_scene import SCENE_TOPIC, TRANSFORMS_TOPIC, SceneEncoder, schemas
+from .foxglove_scene import LIVE_PATH_REFRESH_S, SCENE_TOPICS, TRANSFORMS_TOPIC, SceneEncoder, TransformEncoder, schemas
 from .record import (
     _RESERVED_FIELD,
+    POSE_IN_FRAME_SCHEMA,
     POSE_TOPIC,
-    TF_TOPIC,
     _dumps,
     _encode,
     _schema_for,
     _schema_name,
     _time_ns,
     _to_json,
-    pose_messages,
+    pose_message,
 )
 from .scene import SceneFrame
 
@@ -50,7 +50,8 @@ class LiveView:
                 f"live view: cannot listen on {host}:{port} ({str(exc).splitlines()[0]}): choose another live_port"
             ) from None
         self._channels: dict[str, foxglove.Channel] = {}
-        self._scene: SceneEncoder | None = None
+        self._scene = SceneEncoder(path_refresh_s=LIVE_PATH_REFRESH_S)  # for a client that joins later
+        self._transforms = TransformEncoder()
         self.host = host
 
     @property
@@ -82,32 +83,34 @@ class LiveView:
         if chan.has_sinks():
             chan.log(_encode(message, topic), log_time=_time_ns(t))
 
-    def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None:
-        pose = [self._channels.get(topic) for topic in (POSE_TOPIC, TF_TOPIC)]
-        if all(c is not None and not c.has_sinks() for c in pose):
-            return  # advertised, nobody subscribed
-        for topic, schema_name, schema, payload in pose_messages(t, position, quaternion_wxyz):
-            chan = self._json_channel(topic, schema_name, schema)
-            if chan.has_sinks():
-                chan.log(_dumps(payload), log_time=_time_ns(t))
+    def _idle(self, topics: tuple[str, ...]) -> bool:
+        """Every one of ``topics`` advertised and nobody subscribed: nothing to encode."""
+        return all(c is not None and not c.has_sinks() for c in map(self._channels.get, topics))
 
-    def write_encoded(self, topic: str, t: float, schema: foxglove.Schema, data: bytes) -> None:
-        """Publish a protobuf-encoded message (the scene, as in the log) with its ``foxglove.Schema``."""
+    def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None:
+        """Publish the pose and the transform, as the log writes them."""
+        if self._idle((POSE_TOPIC, TRANSFORMS_TOPIC)):
+            return
+        pose, p, q = pose_message(t, position, quaternion_wxyz)
+        chan = self._json_channel(POSE_TOPIC, "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA)
+        if chan.has_sinks():
+            chan.log(_encode(pose, POSE_TOPIC), log_time=_time_ns(t))
+        self.write_encoded(TRANSFORMS_TOPIC, t, self._transforms.message(t, p, q))
+
+    def write_encoded(self, topic: str, t: float, data: bytes) -> None:
+        """Publish a protobuf message on one of :func:`slotexp.foxglove_scene.schemas`' topics, in its schema."""
         chan = self._channels.get(topic)
         if chan is None:
-            chan = foxglove.Channel(topic, schema=schema, message_encoding="protobuf", context=self._context)
+            chan = foxglove.Channel(topic, schema=schemas()[topic], message_encoding="protobuf", context=self._context)
             self._channels[topic] = chan
         if chan.has_sinks():
             chan.log(data, log_time=_time_ns(t))
 
     def write_scene(self, frame: SceneFrame) -> None:
-        if self._scene is None:
-            self._scene = SceneEncoder()
-        scene = [self._channels.get(topic) for topic in (SCENE_TOPIC, TRANSFORMS_TOPIC)]
-        if all(c is not None and not c.has_sinks() for c in scene):
-            return  # advertised, nobody subscribed: skip encoding the messages
+        if self._idle(SCENE_TOPICS):
+            return
         for topic, data in self._scene.messages(frame):
-            self.write_encoded(topic, frame.t, schemas()[topic], data)
+            self.write_encoded(topic, frame.t, data)
 
     def close(self) -> None:
         """Stop the server (clients are disconnected) and close the channels."""

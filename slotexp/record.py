@@ -2,9 +2,10 @@
 
 Files are written so that Foxglove can open them directly: the numeric topics are
 JSON messages with ``jsonschema`` schemas (plus the well-known ``foxglove.PoseInFrame``
-and ``foxglove.FrameTransform`` schemas for the torso pose); the 3D scene
-(:meth:`Recorder.write_scene`) is Foxglove's own ``SceneUpdate`` and
-``FrameTransforms``, protobuf-encoded by ``foxglove-sdk`` with the schemas it ships.
+schema for the torso pose, which the figures read); the torso's transform
+(``/transforms``, with the pose) and the 3D scene (:meth:`Recorder.write_scene`) are
+Foxglove's own ``FrameTransforms`` and ``SceneUpdate``, protobuf-encoded in the schemas
+``foxglove-sdk`` ships (:mod:`slotexp.foxglove_scene`).
 A run that is killed part-way still leaves a readable file: data goes out in small
 chunks and the file object is flushed whenever the writer emits bytes, so everything
 but the last partial chunk survives a SIGKILL.
@@ -38,6 +39,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from .errors import LogReadError
+from .foxglove_scene import TRANSFORMS_TOPIC, SceneEncoder, TransformEncoder, schemas
 
 __all__ = [
     "LogReadError",
@@ -46,17 +48,15 @@ __all__ = [
     "flatten",
     "read_log",
     "POSE_TOPIC",
-    "TF_TOPIC",
 ]
 
 POSE_TOPIC = "/torso/pose"
-TF_TOPIC = "/tf"
 
 _MAGIC = b"\x89MCAP0\r\n"
 _NS_PER_S = 1_000_000_000
 _MESSAGE_ENCODING = "json"
 _SCHEMA_ENCODING = "jsonschema"
-_BINARY_ENCODING = "protobuf"  # foxglove-sdk's messages (the 3D scene): not tabular, skipped by read_log
+_BINARY_ENCODING = "protobuf"  # foxglove-sdk's messages (the scene, the transform): not tabular, skipped by read_log
 _RESERVED_FIELD = "t"  # the DataFrame's log-time column
 
 
@@ -190,59 +190,37 @@ POSE_IN_FRAME_SCHEMA: dict[str, Any] = {
     },
 }
 
-FRAME_TRANSFORM_SCHEMA: dict[str, Any] = {
-    "title": "foxglove.FrameTransform",
-    "description": "A transform between two reference frames in 3D space",
-    "type": "object",
-    "properties": {
-        "timestamp": {**_TIME_SCHEMA, "description": "Timestamp of transform"},
-        "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
-        "child_frame_id": {"type": "string", "description": "Name of the child frame"},
-        "translation": {**_VECTOR3_SCHEMA, "description": "Translation parent->child"},
-        "rotation": {**_QUATERNION_SCHEMA, "description": "Rotation parent->child"},
-    },
-}
-
-
 # --------------------------------------------------------------------------- writing
 
 
-def pose_messages(
-    t: float,
-    position: Sequence[float],
-    quaternion_wxyz: Sequence[float],
-    frame_id: str = "world",
-    child_frame_id: str = "torso",
-) -> list[tuple[str, str, dict[str, Any], dict[str, Any]]]:
-    """The torso pose as (topic, schema name, JSON schema, payload) for ``PoseInFrame`` and ``FrameTransform``.
+def pose_message(
+    t: float, position: Sequence[float], quaternion_wxyz: Sequence[float], frame_id: str = "world"
+) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
+    """The torso pose as a ``foxglove.PoseInFrame`` payload (the quaternion (w, x, y, z) in, Foxglove's
+    x, y, z, w out; for :func:`_encode`, which writes a non-finite number as null), and the checked
+    position (3,) and quaternion (4,) as float arrays (the transform's).
 
-    Two topics because Foxglove's 3D panel builds its frame tree from
-    FrameTransforms and draws a pose marker from PoseInFrame.
-    The input quaternion is (w, x, y, z); Foxglove stores it as x, y, z, w.
-    Shared by the log and the live view, so both carry the same messages.
+    Foxglove's 3D panel draws a pose marker from it, and builds its frame tree from the
+    ``/transforms`` written beside it. Shared by the log and the live view.
     """
-    p = [float(v) for v in np.asarray(position, dtype=float).ravel()]
-    q = [float(v) for v in np.asarray(quaternion_wxyz, dtype=float).ravel()]
+    p = np.asarray(position, dtype=float).ravel()
+    q = np.asarray(quaternion_wxyz, dtype=float).ravel()
     if len(p) != 3:
         raise ValueError(f"position must have 3 elements, got {len(p)}")
     if len(q) != 4:
         raise ValueError(f"quaternion_wxyz must have 4 elements, got {len(q)}")
     log_time = _time_ns(t)
-    stamp = {"sec": log_time // _NS_PER_S, "nsec": log_time % _NS_PER_S}
-    xyz = _to_json({"x": p[0], "y": p[1], "z": p[2]}, "position")
-    quat = _to_json({"x": q[1], "y": q[2], "z": q[3], "w": q[0]}, "quaternion")
-    pose = {"timestamp": stamp, "frame_id": frame_id, "pose": {"position": xyz, "orientation": quat}}
-    tf = {
-        "timestamp": stamp,
-        "parent_frame_id": frame_id,
-        "child_frame_id": child_frame_id,
-        "translation": xyz,
-        "rotation": quat,
+    x, y, z = p.tolist()
+    w, qx, qy, qz = q.tolist()
+    pose = {
+        "timestamp": {"sec": log_time // _NS_PER_S, "nsec": log_time % _NS_PER_S},
+        "frame_id": frame_id,
+        "pose": {
+            "position": {"x": x, "y": y, "z": z},
+            "orientation": {"x": qx, "y": qy, "z": qz, "w": w},
+        },
     }
-    return [
-        (POSE_TOPIC, "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA, pose),
-        (TF_TOPIC, "foxglove.FrameTransform", FRAME_TRANSFORM_SCHEMA, tf),
-    ]
+    return pose, p, q
 
 
 class _FlushingFile:
@@ -296,8 +274,8 @@ class Recorder:
         self._file: IO[bytes] = open(self.path, "wb")
         self._closed = False
         self._channels: dict[str, _Chan] = {}
-        self._scene: Any = None  # the scene's encoder, made on the first scene (imports foxglove-sdk)
-        self._scene_schemas: dict[str, Any] = {}
+        self._scene = SceneEncoder()
+        self._transforms = TransformEncoder()
         try:
             self._writer = Writer(
                 _FlushingFile(self._file),  # type: ignore[arg-type]
@@ -364,14 +342,16 @@ class Recorder:
         frame_id: str = "world",
         child_frame_id: str = "torso",
     ) -> None:
-        """Log the torso pose as Foxglove ``PoseInFrame`` and ``FrameTransform`` (:func:`pose_messages`)."""
+        """Log the torso pose: ``/torso/pose`` (Foxglove ``PoseInFrame``, JSON, read by the figures) and
+        ``/transforms`` (``FrameTransforms``, protobuf: the frame tree of Foxglove's 3D panel)."""
         self._check_open()
-        messages = pose_messages(t, position, quaternion_wxyz, frame_id, child_frame_id)
-        for topic, schema_name, schema, payload in messages:
-            self._emit(self._channel(topic, schema_name, schema), _time_ns(t), _dumps(payload))
+        pose, p, q = pose_message(t, position, quaternion_wxyz, frame_id)
+        chan = self._channel(POSE_TOPIC, "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA)
+        self._emit(chan, _time_ns(t), _encode(pose, POSE_TOPIC))
+        self.write_encoded(TRANSFORMS_TOPIC, t, self._transforms.message(t, p, q, frame_id, child_frame_id))
 
-    def write_encoded(self, topic: str, t: float, schema: Any, data: bytes) -> None:
-        """Log an encoded message on ``topic`` whose schema is a ``foxglove.Schema`` (name, encoding, data).
+    def write_encoded(self, topic: str, t: float, data: bytes) -> None:
+        """Log a protobuf message on one of :func:`slotexp.foxglove_scene.schemas`' topics, in its schema.
 
         The schema record is the SDK's own (name, encoding and descriptor), so a viewer
         decodes it exactly as the SDK's MCAP writer would have it.
@@ -379,25 +359,16 @@ class Recorder:
         self._check_open()
         chan = self._channels.get(topic)
         if chan is None:
+            schema = schemas()[topic]
             schema_id = self._writer.register_schema(name=schema.name, encoding=schema.encoding, data=schema.data)
-            encoding = {_SCHEMA_ENCODING: _MESSAGE_ENCODING}.get(schema.encoding, schema.encoding)
-            cid = self._writer.register_channel(topic=topic, message_encoding=encoding, schema_id=schema_id)
+            cid = self._writer.register_channel(topic=topic, message_encoding=schema.encoding, schema_id=schema_id)
             chan = self._channels[topic] = _Chan(cid)
-        log_time = _time_ns(t)
-        self._writer.add_message(
-            channel_id=chan.id, log_time=log_time, publish_time=log_time, data=data, sequence=chan.sequence
-        )
-        chan.sequence = (chan.sequence + 1) & 0xFFFFFFFF
+        self._emit(chan, _time_ns(t), data)
 
     def write_scene(self, frame: Any) -> None:
         """Log one step's 3D scene (a :class:`slotexp.scene.SceneFrame`) as Foxglove messages."""
-        if self._scene is None:
-            from .foxglove_scene import SceneEncoder, schemas
-
-            self._scene = SceneEncoder()
-            self._scene_schemas = schemas()
         for topic, data in self._scene.messages(frame):
-            self.write_encoded(topic, frame.t, self._scene_schemas[topic], data)
+            self.write_encoded(topic, frame.t, data)
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         """Write an MCAP Metadata record (written immediately, so it survives a crash)."""

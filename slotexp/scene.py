@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .body import quat_to_rot
+from .jit import njit
 
 FORCE_SCALE_M_PER_N = 0.01
 ARROW_HEAD_FRACTION = 0.25
@@ -29,9 +30,11 @@ PATH_SPACING_M = 0.005  # a path keeps a point each time the robot has moved thi
 PATH_MAX_POINTS = 500  # beyond this a path keeps every other point: a step costs the same on any run length
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class SceneFrame:
-    """One step of the 3D scene, world frame, metres."""
+    """One step of the 3D scene, world frame, metres. Read-only by convention: one frame goes to every
+    sink (the log and the live view). Not a frozen dataclass: its ``__init__`` cost three times as much,
+    every logged step."""
 
     t: float
     position: np.ndarray  # torso centre (3,)
@@ -47,9 +50,10 @@ class SceneFrame:
     footholds: np.ndarray | None = None  # (4, 3) where the controller plans to put each foot; None: it plans none
 
 
-def rotation_from_x(direction: Sequence[float]) -> tuple[float, float, float, float]:
-    """Shortest rotation (x, y, z, w) from the +x axis to ``direction``; identity for a zero or non-finite
-    vector, half a turn about z for -x. Plain floats: for four arrows a step, numpy's per-call cost dominates."""
+@njit(cache=True)
+def rotation_from_x(direction: np.ndarray) -> tuple[float, float, float, float]:
+    """Shortest rotation (x, y, z, w) from the +x axis to ``direction`` (3,); identity for a zero or
+    non-finite vector, half a turn about z for -x."""
     dx, dy, dz = float(direction[0]), float(direction[1]), float(direction[2])
     n = math.sqrt(dx * dx + dy * dy + dz * dz)
     if not (n > 0.0 and math.isfinite(n)):
@@ -62,27 +66,37 @@ def rotation_from_x(direction: Sequence[float]) -> tuple[float, float, float, fl
     return (0.0, -dz / m, dy / m, w / m)
 
 
+@njit(cache=True)
 def force_arrows(feet: np.ndarray, forces: np.ndarray, scale: float = FORCE_SCALE_M_PER_N) -> np.ndarray:
     """Each foot's force as an arrow (n, 9): the tail (the foot), the rotation x, y, z, w from +x onto the
     force, then the shaft's and the head's length, together ``scale`` metres per newton (zero for a zero or
-    non-finite force)."""
-    flat: list[float] = []
-    for tail, f in zip(np.asarray(feet, dtype=float).tolist(), np.asarray(forces, dtype=float).tolist()):
+    non-finite force). Compiled: in Python, four arrows cost as much as the rest of a step's scene."""
+    out = np.empty((feet.shape[0], 9))
+    for i in range(feet.shape[0]):
+        f = forces[i]
         magnitude = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
         length = magnitude * scale if math.isfinite(magnitude) else 0.0
         head = ARROW_HEAD_FRACTION * length
-        flat += tail
-        flat += rotation_from_x(f)
-        flat += (length - head, head)
-    return np.array(flat).reshape(-1, 9)
+        out[i, :3] = feet[i]
+        out[i, 3:7] = rotation_from_x(f)
+        out[i, 7] = length - head
+        out[i, 8] = head
+    return out
 
 
+@njit(cache=True)
 def straight_legs(segments_body: np.ndarray, position: np.ndarray, quaternion_wxyz: np.ndarray) -> np.ndarray:
     """Legs drawn as straight segments (n, 2, 3), ``segments_body`` (n, 2, 3) (each leg's torso corner and
-    foot, body frame) at the torso's pose, where no leg shape is known (the ideal plant, and the robot's
-    nominal feet)."""
-    rot = quat_to_rot(np.asarray(quaternion_wxyz, dtype=float))
-    return segments_body @ rot.T + position  # one product and one sum: this runs every logged step
+    foot, body frame) at the torso's pose (float arrays), where no leg shape is known (the ideal plant, and
+    the robot's nominal feet). Compiled: it runs every logged step."""
+    rot = quat_to_rot(quaternion_wxyz)
+    out = np.empty(segments_body.shape)
+    for i in range(segments_body.shape[0]):
+        for j in range(segments_body.shape[1]):
+            x, y, z = segments_body[i, j, 0], segments_body[i, j, 1], segments_body[i, j, 2]
+            for a in range(3):
+                out[i, j, a] = position[a] + rot[a, 0] * x + rot[a, 1] * y + rot[a, 2] * z
+    return out
 
 
 class _Path:
@@ -106,7 +120,7 @@ class _Path:
 
         The kept points are a view of a buffer that a new point extends past the end of every
         earlier view, so a path once returned never changes; thinning starts a new buffer."""
-        p = [float(v) for v in point]
+        p = point.tolist() if isinstance(point, np.ndarray) else [float(v) for v in point]
         if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
             return self._points
         if self._last is not None and math.dist(p, self._last) < self._spacing:

@@ -21,9 +21,25 @@ from foxglove.messages import (
     Timestamp,
     Vector3,
 )
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from slotexp import foxglove_scene as fs
 from slotexp.scene import SceneFrame
+
+
+def message_class(schema_name: str, descriptor_set: bytes):
+    """The protobuf class for ``schema_name`` built from the descriptor set the SDK ships (nothing hand-made)."""
+    files = descriptor_pb2.FileDescriptorSet.FromString(descriptor_set).file
+    pool = descriptor_pool.DescriptorPool()
+    pending = list(files)
+    while pending:  # add each file after the ones it imports
+        progress = [f for f in pending if all(d in {g.name for g in files if g not in pending} for d in f.dependency)]
+        assert progress, "the descriptor set has an import cycle or a missing file"
+        for f in progress:
+            pool.Add(f)
+            pending.remove(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
+
 
 _UPRIGHT = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 
@@ -59,13 +75,15 @@ def _spheres(points: np.ndarray, size: tuple[float, float, float], rgba) -> list
     ]
 
 
-def scene_update(frame: SceneFrame, path_stamps: dict[str, float] | None = None) -> SceneUpdate:
-    """The step's SceneUpdate; a path entity is stamped at ``path_stamps[key]`` (the step its path last
-    changed), at the frame's time if not given."""
-    stamp = Timestamp(*fs.timestamp_ns(frame.t))
+def _entity(t: float, id: str, **primitives) -> SceneEntity:
+    return SceneEntity(timestamp=Timestamp(*fs.timestamp_ns(t)), frame_id=fs.WORLD_FRAME, id=id, **primitives)
 
-    def entity(id: str, at: Timestamp = stamp, **primitives) -> SceneEntity:
-        return SceneEntity(timestamp=at, frame_id=fs.WORLD_FRAME, id=id, **primitives)
+
+def scene_update(frame: SceneFrame) -> SceneUpdate:
+    """The step's ``/scene``: the robot (torso, legs, arrows, feet, footholds)."""
+
+    def entity(id: str, **primitives) -> SceneEntity:
+        return _entity(frame.t, id, **primitives)
 
     cube = CubePrimitive(
         pose=Pose(position=_v(frame.position), orientation=_q_wxyz(frame.quaternion_wxyz)),
@@ -89,13 +107,16 @@ def scene_update(frame: SceneFrame, path_stamps: dict[str, float] | None = None)
     entities.append(entity("feet", spheres=_spheres(frame.feet, (fs.FOOT_DIAMETER_M,) * 3, fs.FOOT_COLOR)))
     if frame.footholds is not None:
         entities.append(entity("footholds", spheres=_spheres(frame.footholds, fs.FOOTHOLD_SIZE_M, fs.FOOTHOLD_COLOR)))
-    for key, path, rgba in (
-        ("reference", frame.reference_path, fs.REFERENCE_COLOR),
-        ("actual", frame.actual_path, fs.ACTUAL_COLOR),
-    ):
-        at = Timestamp(*fs.timestamp_ns((path_stamps or {}).get(key, frame.t)))
-        entities.append(entity(f"path/{key}", at, lines=[_strip(path, rgba)]))
     return SceneUpdate(entities=entities)
+
+
+def path_update(frame: SceneFrame, key: str) -> SceneUpdate:
+    """The step's message on ``PATH_TOPICS[key]``: the path's one entity."""
+    path, rgba = {
+        "reference": (frame.reference_path, fs.REFERENCE_COLOR),
+        "actual": (frame.actual_path, fs.ACTUAL_COLOR),
+    }[key]
+    return SceneUpdate(entities=[_entity(frame.t, f"path/{key}", lines=[_strip(path, rgba)])])
 
 
 def frame_transforms(frame: SceneFrame) -> FrameTransforms:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from slotexp.errors import UserError
+from slotexp.foxglove_scene import schemas
 from slotexp.hardware.mapping import ServoMap
 from slotexp.hardware.run import EXIT_SAFETY_STOP, run_hardware
 from slotexp.record import read_log
@@ -34,7 +35,6 @@ SIM_TOPICS = {
     "/constraints",
     "/markers",
     "/torso/pose",
-    "/tf",
 }
 
 
@@ -54,6 +54,7 @@ def test_full_loop_commands_the_mapped_tendon_angles(tmp_path: Path) -> None:
     log = read_log(result.log_path)
     assert not log.truncated
     assert SIM_TOPICS | {"/servos", "/loop"} <= set(log.topics)
+    assert set(log.scene_topics) == set(schemas())  # the transform and the 3D scene, for Foxglove
     # the log has the simulation schema: the run-log reader behind tables/figures loads it
     data = load_run(result.log_path)
     assert len(data.t) == 60 and np.allclose(np.diff(data.t), 1 / 30)

@@ -18,6 +18,7 @@ import pytest
 from mcap.reader import make_reader
 
 from slotexp.record import LogReadError, Recorder, flatten, is_closed, read_log
+from tests.sdk_scene import message_class
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -161,7 +162,7 @@ def test_metadata_round_trip(tmp_path: Path) -> None:
     }
 
 
-def test_foxglove_pose_and_tf(tmp_path: Path) -> None:
+def test_foxglove_pose_and_transform(tmp_path: Path) -> None:
     path = tmp_path / "pose.mcap"
     with Recorder(path) as rec:
         rec.write_pose(0.5, [1.0, 2.0, 3.0], [0.9, 0.1, 0.2, 0.3])
@@ -198,46 +199,30 @@ def test_foxglove_pose_and_tf(tmp_path: Path) -> None:
     assert (r1["timestamp.sec"], r1["timestamp.nsec"]) == (2, 7)
     assert _ns(r1["t"]) == 2_000_000_007
 
-    tf = log["/tf"]
-    assert list(tf.columns) == [
-        "t",
-        "timestamp.sec",
-        "timestamp.nsec",
-        "parent_frame_id",
-        "child_frame_id",
-        "translation.x",
-        "translation.y",
-        "translation.z",
-        "rotation.x",
-        "rotation.y",
-        "rotation.z",
-        "rotation.w",
-    ]
-    assert list(tf["parent_frame_id"]) == ["world", "map"]
-    assert list(tf["child_frame_id"]) == ["torso", "base"]
-    assert [tf.iloc[1][f"translation.{a}"] for a in "xyz"] == [4.0, 5.0, 6.0]
-    assert [tf.iloc[1][f"rotation.{a}"] for a in "xyzw"] == [1.0, 0.0, 0.0, 0.0]
-    assert [tf.iloc[0][f"rotation.{a}"] for a in "xyzw"] == [0.1, 0.2, 0.3, 0.9]
-
+    assert log.scene_topics == ("/transforms",)  # protobuf: named, not tabulated
     with open(path, "rb") as f:
-        summary = make_reader(f).get_summary()
-    assert summary is not None
-    by_topic = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        by_topic = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+        transforms = [m for _, _, m in reader.iter_messages(["/transforms"])]
+    assert (by_topic["/transforms"].name, by_topic["/transforms"].encoding) == ("foxglove.FrameTransforms", "protobuf")
+    cls = message_class("foxglove.FrameTransforms", by_topic["/transforms"].data)
+    tfs = [cls.FromString(m.data).transforms for m in transforms]
+    assert [m.log_time for m in transforms] == [500_000_000, 2_000_000_007]
+    assert [(tf.timestamp.seconds, tf.timestamp.nanos) for (tf,) in tfs] == [(0, 500_000_000), (2, 7)]
+    assert [(tf.parent_frame_id, tf.child_frame_id) for (tf,) in tfs] == [("world", "torso"), ("map", "base")]
+    assert [[getattr(tf.translation, a) for a in "xyz"] for (tf,) in tfs] == [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]
+    assert [[getattr(tf.rotation, a) for a in "xyzw"] for (tf,) in tfs] == [[0.1, 0.2, 0.3, 0.9], [1.0, 0.0, 0.0, 0.0]]
+
     assert by_topic["/torso/pose"].name == "foxglove.PoseInFrame"
-    assert by_topic["/tf"].name == "foxglove.FrameTransform"
-    for s in by_topic.values():
-        assert s.encoding == "jsonschema"
+    assert by_topic["/torso/pose"].encoding == "jsonschema"
     pj = json.loads(by_topic["/torso/pose"].data)
     assert pj["type"] == "object"
     assert set(pj["properties"]) == {"timestamp", "frame_id", "pose"}
     assert set(pj["properties"]["timestamp"]["properties"]) == {"sec", "nsec"}
     assert set(pj["properties"]["pose"]["properties"]) == {"position", "orientation"}
     assert set(pj["properties"]["pose"]["properties"]["orientation"]["properties"]) == set("xyzw")
-    tj = json.loads(by_topic["/tf"].data)
-    assert set(tj["properties"]) == {"timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"}
-    assert set(tj["properties"]["translation"]["properties"]) == set("xyz")
-    assert set(tj["properties"]["rotation"]["properties"]) == set("xyzw")
-    assert tj["properties"]["rotation"]["properties"]["w"] == {"type": "number"}
 
 
 def _assert_prefix(recovered: pd.DataFrame, full: pd.DataFrame) -> None:

@@ -15,34 +15,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 from websockets.sync.client import connect
 
+from slotexp.body import quat_to_rot
 from slotexp.errors import ConfigError
-from slotexp.foxglove_scene import SCENE_TOPIC, TRANSFORMS_TOPIC, SceneEncoder, schemas
+from slotexp.foxglove_scene import PATH_TOPICS, SCENE_TOPIC, TRANSFORMS_TOPIC, SceneEncoder, TransformEncoder, schemas
 from slotexp.live import LiveView
 from slotexp.record import Recorder, read_log
-from slotexp.scene import FORCE_SCALE_M_PER_N, SceneTrack, rotation_from_x
+from slotexp.scene import FORCE_SCALE_M_PER_N, SceneTrack, rotation_from_x, straight_legs
 from slotexp.simulation import Tee, run_closed_loop
 from tests import sdk_scene
 from tests.helpers import load
+from tests.sdk_scene import message_class
 
 LEGS = ("FL", "RL", "RR", "FR")
-
-
-def message_class(schema_name: str, descriptor_set: bytes):
-    """The protobuf class for ``schema_name`` built from the descriptor set the SDK ships (nothing hand-made)."""
-    files = descriptor_pb2.FileDescriptorSet.FromString(descriptor_set).file
-    pool = descriptor_pool.DescriptorPool()
-    pending = list(files)
-    while pending:  # add each file after the ones it imports
-        progress = [f for f in pending if all(d in {g.name for g in files if g not in pending} for d in f.dependency)]
-        assert progress, "the descriptor set has an import cycle or a missing file"
-        for f in progress:
-            pool.Add(f)
-            pending.remove(f)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
 
 
 def rotate(q_xyzw: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -65,23 +52,30 @@ def test_every_step_has_a_scene_that_decodes_with_the_sdk_schema(soft_log: Path)
     cfg = load("experiment=simulate", "plant=cosserat")
     n_nodes = cfg.robot.leg.n_nodes
     log = read_log(soft_log)  # the numeric topics still read; the scene is named, not tabulated
-    assert set(log.scene_topics) == {SCENE_TOPIC, TRANSFORMS_TOPIC}
+    assert set(log.scene_topics) == set(schemas()) == {SCENE_TOPIC, TRANSFORMS_TOPIC, *PATH_TOPICS.values()}
     forces = log["/forces"]
     markers = log["/markers"]
+    reference = log["/reference"]
     with open(soft_log, "rb") as f:
         reader = make_reader(f)
-        schemas = {c.topic: reader.get_summary().schemas[c.schema_id] for c in reader.get_summary().channels.values()}
-        assert schemas[SCENE_TOPIC].name == "foxglove.SceneUpdate" and schemas[SCENE_TOPIC].encoding == "protobuf"
-        assert schemas[TRANSFORMS_TOPIC].name == "foxglove.FrameTransforms"
-        scene_cls = message_class("foxglove.SceneUpdate", schemas[SCENE_TOPIC].data)
-        tf_cls = message_class("foxglove.FrameTransforms", schemas[TRANSFORMS_TOPIC].data)
-        scenes = [(m.log_time, scene_cls.FromString(m.data)) for _, _, m in reader.iter_messages([SCENE_TOPIC])]
-        f.seek(0)
-        tfs = [tf_cls.FromString(m.data) for _, _, m in make_reader(f).iter_messages([TRANSFORMS_TOPIC])]
+        schemas_in_log = {
+            c.topic: reader.get_summary().schemas[c.schema_id] for c in reader.get_summary().channels.values()
+        }
+        for topic in (SCENE_TOPIC, *PATH_TOPICS.values()):
+            assert (schemas_in_log[topic].name, schemas_in_log[topic].encoding) == ("foxglove.SceneUpdate", "protobuf")
+        assert schemas_in_log[TRANSFORMS_TOPIC].name == "foxglove.FrameTransforms"
+        scene_cls = message_class("foxglove.SceneUpdate", schemas_in_log[SCENE_TOPIC].data)
+        tf_cls = message_class("foxglove.FrameTransforms", schemas_in_log[TRANSFORMS_TOPIC].data)
+        by_topic: dict[str, list] = {}
+        for _, channel, m in make_reader(f).iter_messages():
+            by_topic.setdefault(channel.topic, []).append((m.log_time, m.data))
+    scenes = [(t, scene_cls.FromString(data)) for t, data in by_topic[SCENE_TOPIC]]
+    tfs = [tf_cls.FromString(data) for _, data in by_topic[TRANSFORMS_TOPIC]]
     assert len(scenes) == len(forces) == len(tfs) == 6
     for k, (log_time, scene) in enumerate(scenes):
         assert log_time == round(forces["t"].iloc[k] * 1e9)
         entities = {e.id: e for e in scene.entities}
+        assert not any(id.startswith("path/") for id in entities)  # on their own topics
         legs = [entities[f"leg/{name}"] for name in LEGS]
         assert all(len(e.lines) == 1 and len(e.lines[0].points) == n_nodes for e in legs)
         for i, name in enumerate(LEGS):
@@ -103,11 +97,23 @@ def test_every_step_has_a_scene_that_decodes_with_the_sdk_schema(soft_log: Path)
         assert "footholds" not in entities  # the gait controller plans none
         torso = entities["torso"].cubes[0]
         assert [torso.size.x, torso.size.y, torso.size.z] == pytest.approx(cfg.robot.torso.size)
-        assert len(entities["path/actual"].lines[0].points) >= 1
-        assert len(entities["path/reference"].lines[0].points) >= 1
         (tf,) = tfs[k].transforms
         assert (tf.parent_frame_id, tf.child_frame_id) == ("world", "torso")
         assert tf.translation.x == pytest.approx(torso.pose.position.x)
+    # a path's message comes at the first step and where it gained a point: it ends at that step's point
+    step_of = {t: k for k, (t, _) in enumerate(scenes)}
+    for key, topic in PATH_TOPICS.items():
+        assert by_topic[topic][0][0] == scenes[0][0]
+        for log_time, data in by_topic[topic]:
+            (entity,) = scene_cls.FromString(data).entities
+            assert entity.id == f"path/{key}"
+            end = entity.lines[0].points[-1]
+            k = step_of[log_time]
+            if key == "actual":
+                expected = [scenes[k][1].entities[0].cubes[0].pose.position.__getattribute__(a) for a in "xyz"]
+            else:
+                expected = [reference[f"p.{a}"].iloc[k] for a in range(3)]
+            assert [end.x, end.y, end.z] == pytest.approx(expected, abs=1e-12), (key, k)
 
 
 def test_the_rigid_quadrupeds_scene_shows_its_feet_and_the_planned_footholds(tmp_path: Path) -> None:
@@ -154,38 +160,78 @@ def test_paths_keep_a_point_per_spacing_and_arrows_point_along_the_force() -> No
         assert rotate(rotation_from_x(d), np.array([1.0, 0, 0])) == pytest.approx(d / np.linalg.norm(d))
 
 
+def test_straight_legs_are_the_segments_at_the_torsos_pose() -> None:
+    rng = np.random.default_rng(3)
+    segments = rng.normal(scale=0.1, size=(4, 2, 3))
+    for _ in range(10):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        position = rng.normal(size=3)
+        expected = segments @ quat_to_rot(q).T + position
+        np.testing.assert_allclose(straight_legs(segments, position, q), expected, rtol=0, atol=1e-15)
+        wide = np.zeros((4, 3, 3))
+        wide[:, ::2] = segments  # a strided view: the plants' arrays are not always contiguous
+        np.testing.assert_allclose(straight_legs(wide[:, ::2], position, q), expected, rtol=0, atol=1e-15)
+
+
+def test_a_frame_that_does_not_fit_the_layout_is_refused() -> None:
+    """The compiled fill writes into a fixed buffer: a frame with more numbers than the layout has slots
+    (here legs with a node more than the arrows and leg names say) is an error, not a write past the end."""
+    track = SceneTrack(LEGS, [0.1, 0.08, 0.03])
+    frame = track.frame(0.0, [0, 0, 0.04], [1, 0, 0, 0], [0, 0, 0.04], np.zeros((4, 5, 3)), np.ones((4, 3)))
+    encoder = SceneEncoder()
+    encoder.messages(frame)
+    frame.feet = np.zeros((5, 3))
+    with pytest.raises(ValueError, match="do not match its layout"):
+        encoder.messages(frame)
+
+
 @pytest.mark.parametrize(("n_nodes", "footholds"), [(31, False), (2, False), (4, True)])
 def test_the_encoders_bytes_decode_to_the_message_the_sdk_encodes(n_nodes: int, footholds: bool) -> None:
     """The scene's own wire bytes against the SDK's objects and encode(), step after step: paths that grow,
     stay and are thinned, zero, opposite and huge forces, timestamps with no seconds or no nanoseconds, a
-    zero node."""
+    zero node. A path's message comes when the path changed, and with a refresh also when it is due."""
     scene_cls = message_class("foxglove.SceneUpdate", schemas()[SCENE_TOPIC].data)
     tf_cls = message_class("foxglove.FrameTransforms", schemas()[TRANSFORMS_TOPIC].data)
     rng = np.random.default_rng(7)
     track = SceneTrack(LEGS, [0.1255, 0.0855, 0.034], spacing=0.004, max_points=3)  # thinned at a 4th point
-    encoder = SceneEncoder()
+    logged, live, transforms = SceneEncoder(), SceneEncoder(path_refresh_s=1.0), TransformEncoder()
     lengths = []
-    changed: dict[str, float] = {}
     last: dict[str, np.ndarray] = {}
-    for k, t in enumerate([0.0, 0.4, 1.0, 1.0333333333, 2.5, 7.0, 12345.678901, 12345.7]):
+    made: dict[str, float] = {}
+    written: list[list[str]] = []
+    for k, t in enumerate([0.0, 0.4, 1.0, 1.0333333333, 2.5, 7.0, 8.0, 12345.678901, 12345.7]):
         legs = rng.normal(scale=0.05, size=(4, n_nodes, 3))
         legs[0, 0] = 0.0
         forces = rng.normal(size=(4, 3)) + [0.0, 0.0, 5.0]
         forces[k % 4] = [[0.0, 0.0, 0.0], [-3.0, 0.0, 0.0], [1e6, -2e6, 3.0], [0.0, 0.0, -1.0]][k % 4]
-        position = [k * 3e-3, -k * 1e-3, 0.04]
+        position = [k * 3e-3, -k * 1e-3, 0.04] if k < 5 else [0.012, -0.004, 0.04]  # stands still from step 5
         q = rng.normal(size=4)
         planned = rng.normal(scale=0.1, size=(4, 3)) if footholds else None
         frame = track.frame(t, position, q / np.linalg.norm(q), [k * 2e-3, 0.0, 0.04], legs, forces, planned)
+        changed = []
         for key, path in (("reference", frame.reference_path), ("actual", frame.actual_path)):
             if last.get(key) is not path:
-                last[key], changed[key] = path, t
-        lengths.append(len(frame.actual_path))
-        (tf_topic, tf_bytes), (scene_topic, scene_bytes) = encoder.messages(frame)
-        assert (tf_topic, scene_topic) == (TRANSFORMS_TOPIC, SCENE_TOPIC)
-        expected = scene_cls.FromString(sdk_scene.scene_update(frame, changed).encode())
-        assert scene_cls.FromString(scene_bytes) == expected, k
+                last[key] = path
+                changed.append(key)
+        due = [key for key in PATH_TOPICS if key in changed or t - made.get(key, -1e9) >= 1.0]
+        made.update({key: t for key in due})
+        lengths.append(len(frame.reference_path))
+        expected = {
+            SCENE_TOPIC: sdk_scene.scene_update(frame),
+            **{PATH_TOPICS[key]: sdk_scene.path_update(frame, key) for key in PATH_TOPICS},
+        }
+        for encoder, paths in ((logged, changed), (live, due)):
+            messages = encoder.messages(frame)
+            assert [topic for topic, _ in messages] == [SCENE_TOPIC, *(PATH_TOPICS[key] for key in paths)]
+            for topic, data in messages:
+                assert scene_cls.FromString(data) == scene_cls.FromString(expected[topic].encode()), (k, topic)
+        tf_bytes = transforms.message(t, frame.position, frame.quaternion_wxyz)
         assert tf_cls.FromString(tf_bytes) == tf_cls.FromString(sdk_scene.frame_transforms(frame).encode()), k
-    assert 3 in lengths and lengths[-1] < 3 and changed["reference"] < t  # grew, was thinned, stood still
+        written.append(changed)
+    assert 3 in lengths and min(lengths[lengths.index(3) :]) < 3  # grew and was thinned
+    assert "actual" not in written[-1] and "actual" not in written[-2]  # stood still: the log writes nothing
+    assert made["actual"] == 12345.678901  # the live view resent it once a second had passed
 
 
 def _frames(stop: threading.Event, view: LiveView, rec: Recorder | None = None) -> None:
@@ -225,7 +271,7 @@ def test_live_server_advertises_and_streams_the_scene_to_a_client() -> None:
                         channels.update({c["topic"]: c for c in json.loads(msg)["channels"]})
                 scene = channels[SCENE_TOPIC]
                 assert (scene["encoding"], scene["schemaName"]) == ("protobuf", "foxglove.SceneUpdate")
-                assert {TRANSFORMS_TOPIC, "/torso/pose", "/tf"} <= set(channels)
+                assert {TRANSFORMS_TOPIC, "/torso/pose", *PATH_TOPICS.values()} <= set(channels)
                 ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": scene["id"]}]}))
                 while True:
                     msg = ws.recv(timeout=10)
@@ -253,7 +299,7 @@ def test_tee_writes_the_same_steps_to_the_log_and_the_view(tmp_path: Path) -> No
     with Recorder(tmp_path / "a.mcap") as rec, LiveView(port=0) as view:
         run_closed_loop(cfg, cfg.scenarios["baseline"], 0.2, Tee(rec, view))
     log = read_log(tmp_path / "a.mcap")
-    assert len(log["/state"]) == 6 and set(log.scene_topics) == {SCENE_TOPIC, TRANSFORMS_TOPIC}
+    assert len(log["/state"]) == 6 and set(log.scene_topics) == set(schemas())
 
 
 def test_shipped_layout_is_the_built_one_and_plots_only_what_a_run_logs(soft_log: Path, tmp_path: Path) -> None:

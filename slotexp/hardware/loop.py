@@ -67,7 +67,8 @@ def nominal_feet(robot: RobotModel, position: np.ndarray, quaternion: np.ndarray
 def nominal_legs(robot: RobotModel, position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
     """Straight legs (4, 2, 3) from the torso corners to the nominal feet at the measured pose: the 3D view's
     legs on the robot, whose leg shapes are not measured."""
-    return straight_legs(np.stack((robot.corners_body, robot.feet_body), axis=1), position, quaternion)
+    segments = np.stack((robot.corners_body, robot.feet_body), axis=1)
+    return straight_legs(segments, np.asarray(position, dtype=float), np.asarray(quaternion, dtype=float))
 
 
 def run_loop(
