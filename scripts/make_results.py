@@ -250,6 +250,9 @@ BENCHES = {
     "bench_mpc": ["mpc"],
     "bench_leg": ["leg"],
     "rigid_bench": ["rigid"],
+    "bench_scene": ["scene"],  # what logging the 3D scene costs the closed loop, on each plant
+    "bench_scene_ideal": ["scene", "plant=ideal"],
+    "bench_scene_rigid": ["scene", "plant=rigid"],
 }
 
 
