@@ -8,7 +8,7 @@ and calling their ``encode()``: a scene is some 50 such objects, plus a Point3 p
 node (124 on the soft plant), and building them was most of what the scene cost a step.
 Every step's message has the same layout, only its numbers change, so :class:`SceneEncoder`
 lays the messages out once as protobuf wire bytes and each step writes its float64 values
-into place with one numpy assignment. The tests decode its output and the SDK's
+into place with one compiled call (:func:`_fill_scene`). The tests decode its output and the SDK's
 ``encode()`` of the same scene with the SDK's schema and compare the two messages.
 
 Topics:
