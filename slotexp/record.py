@@ -486,12 +486,15 @@ def is_closed(path: str | Path) -> bool:
     return True
 
 
-def _read_indexed(f: IO[bytes], size: int) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
-    """Read through the summary index; raises if the file has no valid footer/summary."""
+def _read_indexed(
+    f: IO[bytes], size: int, topics: Collection[str] | None
+) -> tuple[list[_Raw], dict[str, dict[str, str]]]:
+    """Read through the summary index (only ``topics``' messages, when given: the index skips the chunks
+    that hold none of them); raises if the file has no valid footer/summary."""
     reader = _indexed_reader(f, size)
     channels = reader.get_summary().channels.values()
     binary = {c.topic for c in channels if c.message_encoding == _BINARY_ENCODING}
-    wanted = sorted({c.topic for c in channels} - binary)
+    wanted = sorted({c.topic for c in channels if topics is None or c.topic in topics} - binary)
     raw: list[_Raw] = [(topic, _BINARY_ENCODING, 0, b"") for topic in sorted(binary)]  # named, not decoded
     raw += [
         (channel.topic, channel.message_encoding, message.log_time, message.data)
@@ -619,7 +622,7 @@ def read_log(path: str | Path, topics: Collection[str] | None = None) -> Log:
                 what = "empty file" if size == 0 else "bad magic bytes"
                 raise LogReadError(f"{p}: not an MCAP file ({what})")
             try:
-                raw, metadata = _read_indexed(f, size)
+                raw, metadata = _read_indexed(f, size, topics)
                 truncated = False
             except Exception:
                 f.seek(0)

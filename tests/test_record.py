@@ -162,6 +162,20 @@ def test_metadata_round_trip(tmp_path: Path) -> None:
     }
 
 
+def test_reading_some_topics_gives_those_topics_whole_and_all_the_metadata(tmp_path: Path) -> None:
+    path = tmp_path / "rich.mcap"
+    _write_rich_log(path, n=400, chunk_size=2048)
+    full = read_log(path)
+    cut = tmp_path / "cut.mcap"  # no summary index: read by streaming
+    cut.write_bytes(path.read_bytes()[:-1])
+    for p in (path, cut):
+        some = read_log(p, topics=("/ctrl",))
+        assert list(some.topics) == ["/ctrl"] and some.metadata == full.metadata
+        pd.testing.assert_frame_equal(some["/ctrl"], full["/ctrl"])
+        none = read_log(p, topics=())
+        assert none.topics == {} and none.metadata == full.metadata
+
+
 def test_foxglove_pose_and_transform(tmp_path: Path) -> None:
     path = tmp_path / "pose.mcap"
     with Recorder(path) as rec:
