@@ -210,17 +210,27 @@ def _entity(stamp: bytes, body: bytes | memoryview) -> list[bytes | memoryview]:
 # --------------------------------------------------------------------------- the scene
 
 
+@njit(cache=True)
+def _scatter(buffer: np.ndarray, slots: np.ndarray, values: np.ndarray) -> None:
+    """Write ``values`` (float64) into ``buffer`` (bytes) at the byte offsets ``slots``, one each."""
+    if values.shape[0] != slots.shape[0]:
+        raise ValueError("the numbers do not match the message's layout")
+    raw = values.view(np.uint8)
+    for i in range(slots.shape[0]):
+        for b in range(8):
+            buffer[slots[i] + b] = raw[8 * i + b]
+
+
 class _Template:
     """Encoded fields in one writable buffer; :meth:`fill` writes a step's float64 values into the slots."""
 
     def __init__(self, piece: _Piece) -> None:
         self.buffer = np.frombuffer(bytearray(piece.data), dtype=np.uint8)
         self.slots = np.array(piece.slots, dtype=np.intp)
-        self._value_bytes = (self.slots[:, None] + np.arange(8)).ravel()
 
     def fill(self, values: np.ndarray) -> None:
         """Write this step's numbers (float64, in the slots' order) into place."""
-        self.buffer[self._value_bytes] = values.view(np.uint8)
+        _scatter(self.buffer, self.slots, values)
 
 
 class TransformEncoder:
@@ -290,10 +300,7 @@ def _fill_scene(
     k = _put_rows(values, k, arrows)
     k = _put_rows(values, k, feet)
     _put_rows(values, k, footholds)
-    raw = values.view(np.uint8)
-    for i in range(slots.shape[0]):
-        for b in range(8):
-            buffer[slots[i] + b] = raw[8 * i + b]
+    _scatter(buffer, slots, values)
 
 
 class _Layout:

@@ -176,7 +176,8 @@ def test_straight_legs_are_the_segments_at_the_torsos_pose() -> None:
 
 def test_a_frame_that_does_not_fit_the_layout_is_refused() -> None:
     """The compiled fill writes into a fixed buffer: a frame with more numbers than the layout has slots
-    (here legs with a node more than the arrows and leg names say) is an error, not a write past the end."""
+    (here a foot more than the legs) is an error, not a write past the end; so is a transform with too
+    few numbers, not a read past them."""
     track = SceneTrack(LEGS, [0.1, 0.08, 0.03])
     frame = track.frame(0.0, [0, 0, 0.04], [1, 0, 0, 0], [0, 0, 0.04], np.zeros((4, 5, 3)), np.ones((4, 3)))
     encoder = SceneEncoder()
@@ -184,6 +185,8 @@ def test_a_frame_that_does_not_fit_the_layout_is_refused() -> None:
     frame.feet = np.zeros((5, 3))
     with pytest.raises(ValueError, match="do not match its layout"):
         encoder.messages(frame)
+    with pytest.raises(ValueError, match="do not match the message's layout"):
+        TransformEncoder().message(0.0, np.zeros(2), np.array([1.0, 0.0, 0.0, 0.0]))  # a 2-D position
 
 
 @pytest.mark.parametrize(("n_nodes", "footholds"), [(31, False), (2, False), (4, True)])
