@@ -11,6 +11,7 @@ microseconds per topic. :class:`slotexp.simulation.Tee` sends one step to both t
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -125,17 +126,21 @@ class LiveView:
         self.close()
 
 
-def open_view(port: int, notify: Callable[[str], None], keep_going: bool = False) -> LiveView | None:
-    """A started :class:`LiveView`, its address told through ``notify``. A busy port is a
-    :class:`ConfigError`, or with ``keep_going`` (the robot's run: it costs nothing but the view) a
-    warning through ``notify`` and None."""
+def open_view(
+    enabled: bool, port: int, notify: Callable[[str], None], keep_going: bool = False
+) -> contextlib.AbstractContextManager[LiveView | None]:
+    """The live view a run asks for, to enter with ``with``: a started :class:`LiveView`, its address told
+    through ``notify``, or None when not ``enabled``. A busy port is a :class:`ConfigError`, or with
+    ``keep_going`` (the robot's run: it costs nothing but the view) a warning through ``notify`` and None."""
+    if not enabled:
+        return contextlib.nullcontext(None)
     try:
         view = LiveView(port)
     except ConfigError as exc:
         if not keep_going:
             raise
         notify(f"warning: {exc}; the run goes on without it (live=false silences this)")
-        return None
+        return contextlib.nullcontext(None)
     notify(f"live: open ws://{view.host}:{view.port} in Foxglove (Open connection)")
     return view
 

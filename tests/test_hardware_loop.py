@@ -235,3 +235,15 @@ def test_start_up_problems_are_user_errors_before_any_write(setup: dict, words: 
         assert w in text, text
     assert writes == []  # nothing is written to a servo until the bus and the odometry both check out
     assert not (tmp_path / "logs").exists()
+
+
+def test_a_busy_live_port_leaves_the_robot_running_with_a_warning(tmp_path: Path) -> None:
+    from slotexp.live import LiveView
+
+    with LiveView(port=0) as busy, ServoEmulator() as emu, OdometryPublisher() as pub:
+        port = busy.port
+        result, notes = run_on_emulator(emu, pub, tmp_path, "duration=0.5", f"live_port={port}")
+    assert result.exit_code == 0, result.message
+    (warning,) = [n for n in notes if n.startswith("warning: live view")]
+    assert f"cannot listen on 127.0.0.1:{port}" in warning and "live=false" in warning
+    assert len(read_log(result.log_path)["/state"]) == 15  # the run went on: 0.5 s at 30 Hz

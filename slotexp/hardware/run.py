@@ -11,17 +11,16 @@ summary, then the log is closed.
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import datetime as _dt
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from .. import __version__
 from ..controllers import Controller, make_controller
+from ..live import open_view
 from ..record import Recorder
 from ..robot import RobotModel, build_robot
 from ..simulation import Tee
@@ -136,7 +135,11 @@ def run_hardware(
             warm_up(controller, robot, first)
             log_path.parent.mkdir(parents=True, exist_ok=True)
             meta = {"config": {"yaml": resolved_yaml}, "run": _run_metadata(cfg, commit)}
-            with Recorder(log_path, metadata=meta) as rec, _live_view(cfg, notify) as live:
+            # the live view is on by default: a busy port costs the robot's run nothing but the view
+            with (
+                Recorder(log_path, metadata=meta) as rec,
+                open_view(cfg.live, cfg.live_port, notify, keep_going=True) as live,
+            ):
                 started = time.perf_counter()
                 try:
                     if not cfg.dry_run and not stop.requested:
@@ -188,16 +191,6 @@ def run_hardware(
             outcome,
         )
     return HardwareResult(EXIT_OK, "", log_path, outcome)
-
-
-def _live_view(cfg: HardwareSlotConfig, notify: Callable[[str], None]) -> contextlib.AbstractContextManager[Any]:
-    """The live view (on by default): a busy port costs the robot run nothing but the view, so it is a warning."""
-    if not cfg.live:
-        return contextlib.nullcontext(None)
-    from ..live import open_view
-
-    view = open_view(cfg.live_port, notify, keep_going=True)
-    return contextlib.nullcontext(None) if view is None else view
 
 
 def _write_summary(

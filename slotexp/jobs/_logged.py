@@ -47,11 +47,9 @@ def git_commit() -> str:
 
 def open_live(cfg: SlotConfig) -> contextlib.AbstractContextManager[Any]:
     """The live view ``cfg.live`` asks for (a started server, announced on stderr), or a no-op context."""
-    if not cfg.live:
-        return contextlib.nullcontext(None)
     from ..live import open_view
 
-    return open_view(cfg.live_port, lambda line: print(line, file=sys.stderr))
+    return open_view(cfg.live, cfg.live_port, lambda line: print(line, file=sys.stderr))
 
 
 def run_logged(
