@@ -58,6 +58,10 @@ class RigidPlant:
         self.torque = np.zeros((4, 3))
         self.mujoco_time_s = 0.0  # wall time spent in mj_step1/mj_step2, for `slot bench rigid`
         self._jdot = np.zeros((3, self.model.nv))
+        parent = self.model.body_parentid
+        calf = parent[self.index.foot_body]  # the calf body starts at the knee
+        # each leg's hip, thigh, knee and foot bodies (4, 4), what legs() draws
+        self._leg_bodies = np.stack([self.index.hip_body, parent[calf], calf, self.index.foot_body], axis=1)
         self._subtree_vel()
 
     # ------------------------------------------------------------------ measurements
@@ -90,13 +94,7 @@ class RigidPlant:
     def legs(self) -> np.ndarray:
         """Each leg (4, 4, 3) as its hip, thigh, knee and foot body origins, world frame (the GIF and the 3D
         view draw them)."""
-        index = self.index
-        out = np.empty((4, 4, 3))
-        for i in range(4):
-            calf = self.model.body_parentid[index.foot_body[i]]  # the calf body starts at the knee
-            thigh = self.model.body_parentid[calf]
-            out[i] = self.data.xpos[[index.hip_body[i], thigh, calf, index.foot_body[i]]]
-        return out
+        return self.data.xpos[self._leg_bodies]
 
     def telemetry(self) -> dict[str, dict]:
         """Joint torques and angles, and each leg's points (:meth:`legs`)."""
