@@ -20,7 +20,7 @@ down by mixing towards standing still.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -114,15 +114,7 @@ class Primitive:
     def shifted(self, cycles: float) -> Primitive:
         """The same gait with its clock ``cycles`` ahead: every leg's phase moves alike, so alone it
         walks exactly as before; only its timing against other primitives changes."""
-        return Primitive(
-            self.name,
-            self.base_deg,
-            self.amplitude_deg,
-            self.phase + cycles,
-            self.heading_deg,
-            self.speed_mps,
-            self.yaw_rate_dps,
-        )
+        return replace(self, phase=self.phase + cycles)
 
     def aligned_to(self, other: Primitive, style: GaitStyle, top: float, samples: int = 240) -> Primitive:
         """This gait shifted in time (:meth:`shifted`) so that its legs' schedules agree best with
