@@ -21,25 +21,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.json_format import MessageToDict
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from slotexp.foxglove_scene import schemas
-
-
-def message_class(name: str, data: bytes):
-    files = descriptor_pb2.FileDescriptorSet.FromString(data).file
-    pool = descriptor_pool.DescriptorPool()
-    done: set[str] = set()
-    pending = list(files)
-    while pending:
-        for f in [f for f in pending if set(f.dependency) <= done]:
-            pool.Add(f)
-            done.add(f.name)
-            pending.remove(f)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+from slotexp.foxglove_scene import message_class, schemas
 
 
 def _foxglove_json(value):

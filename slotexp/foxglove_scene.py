@@ -89,6 +89,27 @@ def schemas() -> dict[str, Schema]:
     return {SCENE_TOPIC: scene, **paths, TRANSFORMS_TOPIC: FrameTransforms.get_schema()}
 
 
+@lru_cache(maxsize=16)
+def message_class(schema_name: str, descriptor_set: bytes) -> type:
+    """The protobuf message class for ``schema_name`` (``foxglove.SceneUpdate``, ...) built from a
+    descriptor set: a log's schema record (``schema.data``) or :func:`schemas`' ``data``. To decode the
+    scene topics in Python; needs ``protobuf`` (in the ``test`` extras). Cached: call it per message."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    files = descriptor_pb2.FileDescriptorSet.FromString(descriptor_set).file
+    pool = descriptor_pool.DescriptorPool()
+    pending = list(files)
+    while pending:  # add each file after the ones it imports
+        added = {f.name for f in files if f not in pending}
+        ready = [f for f in pending if set(f.dependency) <= added]
+        if not ready:
+            raise ValueError(f"the descriptor set for {schema_name} has an import cycle or a missing file")
+        for f in ready:
+            pool.Add(f)
+            pending.remove(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
+
+
 def timestamp_ns(t: float) -> tuple[int, int]:
     """Seconds -> (sec, nsec) of a Foxglove Timestamp (the same nanoseconds the MCAP log time holds)."""
     ns = int(round(float(t) * _NS_PER_S))
@@ -431,6 +452,7 @@ __all__ = [
     "SCENE_TOPICS",
     "SceneEncoder",
     "TransformEncoder",
+    "message_class",
     "schemas",
     "timestamp_ns",
 ]

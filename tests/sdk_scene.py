@@ -21,25 +21,9 @@ from foxglove.messages import (
     Timestamp,
     Vector3,
 )
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from slotexp import foxglove_scene as fs
 from slotexp.scene import SceneFrame
-
-
-def message_class(schema_name: str, descriptor_set: bytes):
-    """The protobuf class for ``schema_name`` built from the descriptor set the SDK ships (nothing hand-made)."""
-    files = descriptor_pb2.FileDescriptorSet.FromString(descriptor_set).file
-    pool = descriptor_pool.DescriptorPool()
-    pending = list(files)
-    while pending:  # add each file after the ones it imports
-        progress = [f for f in pending if all(d in {g.name for g in files if g not in pending} for d in f.dependency)]
-        assert progress, "the descriptor set has an import cycle or a missing file"
-        for f in progress:
-            pool.Add(f)
-            pending.remove(f)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
-
 
 _UPRIGHT = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 

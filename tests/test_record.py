@@ -17,8 +17,8 @@ import pandas as pd
 import pytest
 from mcap.reader import make_reader
 
+from slotexp.foxglove_scene import message_class
 from slotexp.record import LogReadError, Recorder, flatten, is_closed, read_log
-from tests.sdk_scene import message_class
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 

@@ -20,14 +20,21 @@ from websockets.sync.client import connect
 
 from slotexp.body import quat_to_rot
 from slotexp.errors import ConfigError
-from slotexp.foxglove_scene import PATH_TOPICS, SCENE_TOPIC, TRANSFORMS_TOPIC, SceneEncoder, TransformEncoder, schemas
+from slotexp.foxglove_scene import (
+    PATH_TOPICS,
+    SCENE_TOPIC,
+    TRANSFORMS_TOPIC,
+    SceneEncoder,
+    TransformEncoder,
+    message_class,
+    schemas,
+)
 from slotexp.live import LiveView
 from slotexp.record import Recorder, read_log
 from slotexp.scene import FORCE_SCALE_M_PER_N, SceneTrack, rotation_from_x, straight_legs
 from slotexp.simulation import Tee, run_closed_loop
 from tests import sdk_scene
 from tests.helpers import load
-from tests.sdk_scene import message_class
 
 LEGS = ("FL", "RL", "RR", "FR")
 
