@@ -38,37 +38,9 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def torso_step(torso, fx, fy, fz, tx, ty, tz, rot, mass, inertia, inertia_inv, h):
-    """One semi-implicit Euler step of the torso (p q v w_body, (13,)) under a world force and torque
-    about its centre, gyroscopic term kept; ``rot`` is R(q) at the step's start.
-
-    Written out in scalars: it runs at every plant step, where small-array temporaries and
-    matrix products cost more than the arithmetic.
-    """
-    w0, w1, w2 = torso[10], torso[11], torso[12]
-    # velocity, then position with the new velocity
-    v0 = torso[7] + h * fx / mass
-    v1 = torso[8] + h * fy / mass
-    v2 = torso[9] + h * fz / mass
-    torso[0] += h * v0
-    torso[1] += h * v1
-    torso[2] += h * v2
-    torso[7], torso[8], torso[9] = v0, v1, v2
-    # body-frame torque less the gyroscopic term w x (I w)
-    tb0 = rot[0, 0] * tx + rot[1, 0] * ty + rot[2, 0] * tz
-    tb1 = rot[0, 1] * tx + rot[1, 1] * ty + rot[2, 1] * tz
-    tb2 = rot[0, 2] * tx + rot[1, 2] * ty + rot[2, 2] * tz
-    i0 = inertia[0, 0] * w0 + inertia[0, 1] * w1 + inertia[0, 2] * w2
-    i1 = inertia[1, 0] * w0 + inertia[1, 1] * w1 + inertia[1, 2] * w2
-    i2 = inertia[2, 0] * w0 + inertia[2, 1] * w1 + inertia[2, 2] * w2
-    r0 = tb0 - (w1 * i2 - w2 * i1)
-    r1 = tb1 - (w2 * i0 - w0 * i2)
-    r2 = tb2 - (w0 * i1 - w1 * i0)
-    w0 += h * (inertia_inv[0, 0] * r0 + inertia_inv[0, 1] * r1 + inertia_inv[0, 2] * r2)
-    w1 += h * (inertia_inv[1, 0] * r0 + inertia_inv[1, 1] * r1 + inertia_inv[1, 2] * r2)
-    w2 += h * (inertia_inv[2, 0] * r0 + inertia_inv[2, 1] * r1 + inertia_inv[2, 2] * r2)
-    torso[10], torso[11], torso[12] = w0, w1, w2
-    # q <- q * exp(h w / 2), renormalised
+def advance_quaternion(torso, w0, w1, w2, h):
+    """q <- q exp(h w / 2), renormalised: the torso's attitude (``torso[3:7]``) turned by the body-frame
+    angular velocity (w0, w1, w2) held over a step of ``h``."""
     a0, a1, a2 = 0.5 * h * w0, 0.5 * h * w1, 0.5 * h * w2
     angle = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     d0 = np.cos(angle)
@@ -81,6 +53,33 @@ def torso_step(torso, fx, fy, fz, tx, ty, tz, rot, mass, inertia, inertia_inv, h
     n3 = q0 * d3 + q1 * d2 - q2 * d1 + q3 * d0
     norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
     torso[3], torso[4], torso[5], torso[6] = n0 / norm, n1 / norm, n2 / norm, n3 / norm
+
+
+@njit(cache=True)
+def solve_spd(a, b, x):
+    """x = a^-1 b for a small symmetric positive definite ``a`` (Cholesky; ``a`` is overwritten by its factor)."""
+    n = b.shape[0]
+    for j in range(n):
+        d = a[j, j]
+        for k in range(j):
+            d -= a[j, k] * a[j, k]
+        d = np.sqrt(d)
+        a[j, j] = d
+        for i in range(j + 1, n):
+            t = a[i, j]
+            for k in range(j):
+                t -= a[i, k] * a[j, k]
+            a[i, j] = t / d
+    for i in range(n):
+        t = b[i]
+        for k in range(i):
+            t -= a[i, k] * x[k]
+        x[i] = t / a[i, i]
+    for i in range(n - 1, -1, -1):
+        t = x[i]
+        for k in range(i + 1, n):
+            t -= a[k, i] * x[k]
+        x[i] = t / a[i, i]
 
 
 def euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:

@@ -227,6 +227,8 @@ class SimConfig:
     # below 1 us a run takes hours (the soft plant's reference step is 2.5e-5 s) and looks hung
     dt: float = num_field(1.0e-3, lo=1.0e-6, hi=1.0 / 30.0, unit="s")
     seed: int = num_field(0, lo=0, unit="")
+    # false: no ground at all, the robot in free space (plant=cosserat; for checks of what the model conserves)
+    ground: bool = True
 
 
 @dataclass
@@ -549,6 +551,8 @@ def validate(cfg: SlotConfig) -> SlotConfig:
                 f"cycle must hold a whole number of controller ticks (the sampled waveform otherwise drifts and its "
                 f"speed beats), e.g. {cfg.mpc.rate_hz / max(1, round(ticks)):.6g}"
             )
+    if not cfg.sim.ground and cfg.plant.name != "cosserat":
+        raise ConfigError("sim.ground=false (free space) is a soft-plant setting: add plant=cosserat or drop it")
     if cfg.plant.name == "rigid" and not cfg.robot.rigid.model:
         raise ConfigError(
             f"plant=rigid needs a rigid robot: robot={cfg.robot.name} has no robot.rigid.model "

@@ -7,14 +7,23 @@ on the torso, so torso and legs share one step. Tendons are driven by servos
 (first-order lag towards the commanded angle, tension capped by the stall torque
 over the pulley radius). No fictitious force holds anything up.
 
-Out of plane we assume:
-- each leg is rigid out of its plane (its width, 20 mm, is 1.5-6x its thickness),
-  so the whole leg translates sideways and turns with its root;
-- the foot's sideways friction is regularised Coulomb friction on the leg's actual
-  ground normal force, with the foot's sideways velocity taken from the torso's
-  rigid motion, applied to the torso at the foot;
-- the leg plane turns with the torso's heading; node coordinates in the plane are
-  kept (no Coriolis terms from the plane's slow rotation).
+Out of plane we assume each leg rigid (its width, 20 mm, is 1.5-6x its thickness):
+- a node moves across its leg's plane with the torso's rigid motion at the node,
+  so the legs' mass across their planes belongs to the torso's inertia
+  (:func:`augmented_inertia`: 7 % more sideways mass, about twice the yaw inertia);
+- friction is one isotropic Coulomb law per pressed node on the node's whole slip:
+  along the plane its own velocity, across it the torso's motion there; the part
+  across the plane acts on the torso at the node, implicit in the torso's velocity;
+- the plane stays vertical and turns with the torso's heading; when it turns, its
+  nodes' in-plane momentum is re-expressed in the new directions and what leaves the
+  plane goes to the torso (:func:`_sync_legs`), so no momentum is made or lost.
+  Node positions keep the plane vertical: a tilt's sideways offset of the lower
+  nodes (depth x tilt, about 1.4 mm at 2 deg) is not tracked.
+
+The torso's state is its pose and the momentum of it and of the legs' motion across
+their planes; its velocity follows from them (:func:`coupled_steps`). Without ground
+and gravity the whole robot's momentum holds to round-off and its angular momentum
+to the step's order (``tests/test_cosserat.py``).
 """
 
 from __future__ import annotations
@@ -23,14 +32,14 @@ import numpy as np
 from numba import prange
 
 from ..actuation import tendon_angle_deg
-from ..body import euler_to_quat, quat_to_euler, quat_to_rot, torso_step
+from ..body import advance_quaternion, euler_to_quat, quat_to_euler, quat_to_rot, solve_spd
 from ..config import SlotConfig
 from ..errors import DivergenceError
 from ..jit import njit
 from ..robot import RobotModel
 from ..soft.integrators import divergence_message, implicit_once, jacobian_state, stable_dt, symplectic_once
-from ..soft.loads import rest_free_length
-from ..soft.params import O_DIV, O_F, O_FX, O_FZ, O_M, O_N, O_T, OUT, leg_params
+from ..soft.loads import coulomb_friction, friction_slope, rest_free_length
+from ..soft.params import O_DIV, O_F, O_FL, O_FX, O_FZ, O_M, O_N, O_T, OUT, leg_params
 from ..soft.rod import LegModel, build_leg
 from ..soft.servo import RPM_TO_RAD_S, servo_step
 from . import PLANTS, TendonCommand
@@ -48,16 +57,184 @@ def pose_between(start: np.ndarray, end: np.ndarray, s: float) -> np.ndarray:
 
 
 @njit(cache=True)
+def _leg_axes(rot, cy, sy):
+    """A leg's direction in the world's vertical: its horizontal unit u = (ux, uy), the direction's height
+    component and horizontal length (the leg plane is the vertical plane through the corner along u)."""
+    dwx = rot[0, 0] * cy + rot[0, 1] * sy
+    dwy = rot[1, 0] * cy + rot[1, 1] * sy
+    dwz = rot[2, 0] * cy + rot[2, 1] * sy
+    horiz = np.sqrt(dwx * dwx + dwy * dwy)
+    return dwx / horiz, dwy / horiz, dwz, horiz
+
+
+@njit(cache=True)
+def _corner_offset(rot, corner):
+    """A corner's offset from the torso centre in the world frame."""
+    return (
+        rot[0, 0] * corner[0] + rot[0, 1] * corner[1] + rot[0, 2] * corner[2],
+        rot[1, 0] * corner[0] + rot[1, 1] * corner[1] + rot[1, 2] * corner[2],
+        rot[2, 0] * corner[0] + rot[2, 1] * corner[1] + rot[2, 2] * corner[2],
+    )
+
+
+@njit(cache=True)
+def augmented_inertia(torso, rot, torso_mass, inertia, corners, cy, sy, pos, mass, out):
+    """The 6x6 inertia of the torso and the legs' motion across their planes, about the torso centre, world frame.
+
+    A leg is rigid out of its plane, so each node (but the root, which rides in ``torso_mass``)
+    moves across the plane at the torso's rigid velocity there: v_lat = j . (v, w) with
+    j = (lat, (r - p) x lat), lat = e_z x u. Its mass adds m j j^T: the legs' share of the body's
+    sideways mass and of its inertia about every axis (most of all about z). Along the plane the
+    nodes are the legs' own degrees of freedom and carry their own momentum.
+    """
+    out[:, :] = 0.0
+    for a in range(3):
+        out[a, a] = torso_mass
+        for b in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += rot[a, k] * (inertia[k, 0] * rot[b, 0] + inertia[k, 1] * rot[b, 1] + inertia[k, 2] * rot[b, 2])
+            out[3 + a, 3 + b] = acc
+    n = pos.shape[1]
+    for i in range(pos.shape[0]):
+        ux, uy, _, _ = _leg_axes(rot, cy[i], sy[i])
+        lx, ly = -uy, ux
+        rcx, rcy, rcz = _corner_offset(rot, corners[i])
+        # per node j = (lx, ly, 0, -ly z, lx z, w0 + s) with z the node's height above the centre and
+        # w0 + s = lat x-component of (r - p) x lat; so the leg's share needs six sums over its nodes
+        w0 = rcx * ly - rcy * lx
+        m0 = ms = mz = mss = msz = mzz = 0.0
+        for k in range(1, n):
+            m = mass[k]
+            s = pos[i, k, 0]
+            z = pos[i, k, 1] - torso[2]
+            m0 += m
+            ms += m * s
+            mz += m * z
+            mss += m * s * s
+            msz += m * s * z
+            mzz += m * z * z
+        mw = w0 * m0 + ms  # sum m (w0 + s)
+        mww = w0 * w0 * m0 + 2.0 * w0 * ms + mss
+        mzw = w0 * mz + msz
+        out[0, 0] += m0 * lx * lx
+        out[0, 1] += m0 * lx * ly
+        out[1, 1] += m0 * ly * ly
+        # sum m b = (-ly mz, lx mz, mw)
+        out[0, 3] += lx * (-ly * mz)
+        out[0, 4] += lx * (lx * mz)
+        out[0, 5] += lx * mw
+        out[1, 3] += ly * (-ly * mz)
+        out[1, 4] += ly * (lx * mz)
+        out[1, 5] += ly * mw
+        out[3, 3] += ly * ly * mzz
+        out[3, 4] += -lx * ly * mzz
+        out[3, 5] += -ly * mzw
+        out[4, 4] += lx * lx * mzz
+        out[4, 5] += lx * mzw
+        out[5, 5] += mww
+    for a in range(6):
+        for b in range(a):
+            out[a, b] = out[b, a]
+
+
+@njit(cache=True)
+def _sync_legs(torso, momentum, rot, corners, cy, sy, pos, eta, vel, omega, mass, inertia_el, prev_corner, prev_u):
+    """Bring every leg's plane to the torso's pose, every node keeping its world position and momentum.
+
+    A step moves the nodes in the plane it started with (through the corner ``prev_corner`` along
+    ``prev_u``): along it by their own velocity, across it (``eta``) by the torso's rigid motion
+    at the node. Here each node is expressed in the plane through the corner now, along the leg's
+    direction now: its distance along it, and its offset across it (the sideways displacement a
+    leg rigid out of its plane takes when the torso tilts or turns). Its in-plane momentum is
+    re-expressed in the new direction too; what no longer lies in the plane (m v_s sin of the
+    turn) is momentum across it, which the leg's rigidity hands to the torso: it goes into
+    ``momentum`` (P, and L about the world origin), so a turn neither makes nor loses momentum.
+    """
+    n = pos.shape[1]
+    for i in range(pos.shape[0]):
+        ux, uy, _, _ = _leg_axes(rot, cy[i], sy[i])
+        lx, ly = -uy, ux
+        rcx, rcy, rcz = _corner_offset(rot, corners[i])
+        cwx = torso[0] + rcx
+        cwy = torso[1] + rcy
+        pux, puy = prev_u[i, 0], prev_u[i, 1]
+        # the old frame's origin relative to the new one, and its axes in the new one
+        ox = prev_corner[i, 0] - cwx
+        oy = prev_corner[i, 1] - cwy
+        cosd = pux * ux + puy * uy
+        sind = pux * lx + puy * ly
+        o_s = ox * ux + oy * uy
+        o_l = ox * lx + oy * ly
+        for k in range(1, n):
+            s_old = pos[i, k, 0]
+            e_old = eta[i, k]
+            # world offset = o + s_old prev_u + e_old prev_lat, with prev_lat = (-puy, pux)
+            pos[i, k, 0] = o_s + s_old * cosd - e_old * sind
+            eta[i, k] = o_l + s_old * sind + e_old * cosd
+        pos[i, 0, 0] = 0.0
+        pos[i, 0, 1] = torso[2] + rcz
+        eta[i, 0] = 0.0
+        prev_corner[i, 0] = cwx
+        prev_corner[i, 1] = cwy
+        prev_corner[i, 2] = torso[2] + rcz
+        if sind != 0.0:
+            px = py = 0.0  # the leftover momentum, along lat
+            lox = loy = loz = 0.0  # ... and its moment about the world origin
+            for k in range(1, n):
+                left = mass[k] * vel[i, k, 0] * sind
+                vel[i, k, 0] *= cosd
+                rx = cwx + pos[i, k, 0] * ux + eta[i, k] * lx
+                ry = cwy + pos[i, k, 0] * uy + eta[i, k] * ly
+                rz = pos[i, k, 1]
+                px += left * lx
+                py += left * ly
+                lox += -rz * left * ly
+                loy += rz * left * lx
+                loz += (rx * ly - ry * lx) * left
+            # the elements' spin about their in-plane axis a = u x e_z turns with the plane too
+            spin = 0.0
+            for e in range(omega.shape[1]):
+                spin += inertia_el[e] * omega[i, e]
+                omega[i, e] *= cosd
+            momentum[0] += px
+            momentum[1] += py
+            momentum[3] += lox + spin * (puy - cosd * uy)
+            momentum[4] += loy + spin * (-pux + cosd * ux)
+            momentum[5] += loz
+        prev_u[i, 0] = ux
+        prev_u[i, 1] = uy
+
+
+@njit(cache=True)
+def _velocity_from_momentum(torso, momentum, rot, aug, scratch, rhs, xi):
+    """The torso's velocity (v, w) from the momentum state and the 6x6 inertia ``aug`` at this pose:
+    written into ``torso[7:13]`` (w in the body frame) and ``xi`` (w in the world frame)."""
+    p0, p1, p2 = torso[0], torso[1], torso[2]
+    rhs[0], rhs[1], rhs[2] = momentum[0], momentum[1], momentum[2]
+    # angular momentum about the torso centre
+    rhs[3] = momentum[3] - (p1 * momentum[2] - p2 * momentum[1])
+    rhs[4] = momentum[4] - (p2 * momentum[0] - p0 * momentum[2])
+    rhs[5] = momentum[5] - (p0 * momentum[1] - p1 * momentum[0])
+    scratch[:, :] = aug
+    solve_spd(scratch, rhs, xi)
+    torso[7], torso[8], torso[9] = xi[0], xi[1], xi[2]
+    for a in range(3):
+        torso[10 + a] = rot[0, a] * xi[3] + rot[1, a] * xi[4] + rot[2, a] * xi[5]
+
+
+@njit(cache=True)
 def coupled_steps(
     torso,
+    momentum,
     torso_mass,
     inertia,
-    inertia_inv,
     gravity,
     corners,
     yaw,
     rest_theta0,
     pos,
+    eta,
     vel,
     theta,
     omega,
@@ -77,8 +254,9 @@ def coupled_steps(
     pulley,
     free0,
     prev_corner,
+    prev_u,
     f_ext,
-    mu_lat,
+    mu,
     v_eps,
     implicit,
     max_age,
@@ -99,68 +277,79 @@ def coupled_steps(
     reaction,
     hold_torso,
 ):
-    """Advance torso (p q v w_body) and four legs ``n_steps`` steps of ``h``.
+    """Advance torso and four legs ``n_steps`` steps of ``h``.
+
+    The torso's state is its pose (``torso[0:7]``: p, q) and ``momentum`` (6: linear momentum
+    and angular momentum about the world origin) of itself and of the legs' motion across their
+    planes (:func:`augmented_inertia`); ``torso[7:13]`` (v, w_body) is derived from them at every
+    step. Each step: the legs' planes follow the torso (:func:`_sync_legs`); each leg steps in its
+    plane with its root on the corner; the leg's root force and moment, and the friction its
+    pressed nodes feel across the plane (implicit in the torso's velocity), change the momentum;
+    the pose moves with the new velocity. Every exchange between a leg and the torso is applied
+    to both, so without ground and gravity the robot's momentum holds to round-off.
 
     ``cth``/``sth`` (4, E) are each leg's directors, kept current by the symplectic step;
     ``lu``, ``kband``, ``jvec``, ``jmeta`` each leg's Jacobian state for the implicit step,
     whose factorisation serves up to ``max_age`` steps (:func:`implicit_once`).
 
-    ``reaction`` (4, 6) receives each leg's force and moment on the torso (world)
-    at the last step. With ``hold_torso`` the torso stays where it is (the legs settle
-    under it). Returns the number of steps done (< n_steps on divergence).
+    ``eta`` (4, N) is each node's offset across its leg's plane (:func:`_sync_legs`).
+    ``reaction`` (4, 6) receives each leg's force and moment on the torso (world) at the last
+    step, its friction across the plane included. With ``hold_torso`` the torso stays where it
+    is, at rest (the legs settle under it). Returns the number of steps done (< n_steps on divergence).
     """
     n_legs = pos.shape[0]
     n_nodes = pos.shape[1]
     inv_mass = 1.0 / mass
     inv_inertia = 1.0 / inertia_el
     root = np.zeros(6)
+    vlat = np.zeros(n_nodes)
     cy = np.cos(yaw)
     sy = np.sin(yaw)
-    for step in range(n_steps):
-        p = torso[0:3]
-        v = torso[7:10]
-        wb = torso[10:13]
+    aug = np.empty((6, 6))  # the torso's 6x6 inertia at this step's pose
+    system = np.empty((6, 6))
+    damp = np.zeros((6, 6))  # h x the lateral friction's slope, as a 6x6 on the torso's velocity
+    load = np.zeros(6)  # generalised force on the torso (world force, moment about its centre)
+    rhs6 = np.empty(6)
+    xi = np.empty(6)  # torso velocity (v, w world) at the step's start
+    xi_new = np.empty(6)
+    for step in range(n_steps + 1):
         rot = quat_to_rot(torso[3:7])
-        ww0 = rot[0, 0] * wb[0] + rot[0, 1] * wb[1] + rot[0, 2] * wb[2]  # world angular velocity
-        ww1 = rot[1, 0] * wb[0] + rot[1, 1] * wb[1] + rot[1, 2] * wb[2]
-        ww2 = rot[2, 0] * wb[0] + rot[2, 1] * wb[1] + rot[2, 2] * wb[2]
-        fx_t = f_ext[0]
-        fy_t = f_ext[1]
-        fz_t = f_ext[2] - torso_mass * gravity
-        tx = 0.0
-        ty = 0.0
-        tz = 0.0
+        _sync_legs(torso, momentum, rot, corners, cy, sy, pos, eta, vel, omega, mass, inertia_el, prev_corner, prev_u)
+        if hold_torso:
+            momentum[:] = 0.0
+            torso[7:13] = 0.0
+            xi[:] = 0.0
+        else:
+            augmented_inertia(torso, rot, torso_mass, inertia, corners, cy, sy, pos, mass, aug)
+            _velocity_from_momentum(torso, momentum, rot, aug, system, rhs6, xi)
+        if step == n_steps:
+            break  # the state is consistent: legs in the torso's planes, velocity from the momentum
+        p0, p1, p2 = torso[0], torso[1], torso[2]
+        ww0, ww1, ww2 = xi[3], xi[4], xi[5]
+        load[0] = f_ext[0]
+        load[1] = f_ext[1]
+        load[2] = f_ext[2] - torso_mass * gravity
+        load[3] = load[4] = load[5] = 0.0
+        damp[:, :] = 0.0
         for i in range(n_legs):
-            # leg direction in the world, its horizontal unit u, and u x e_z (in-plane angle axis)
-            dwx = rot[0, 0] * cy[i] + rot[0, 1] * sy[i]
-            dwy = rot[1, 0] * cy[i] + rot[1, 1] * sy[i]
-            dwz = rot[2, 0] * cy[i] + rot[2, 1] * sy[i]
-            horiz = np.sqrt(dwx * dwx + dwy * dwy)
-            ux = dwx / horiz
-            uy = dwy / horiz
-            # corner offset, position and velocity
-            rcx = rot[0, 0] * corners[i, 0] + rot[0, 1] * corners[i, 1] + rot[0, 2] * corners[i, 2]
-            rcy = rot[1, 0] * corners[i, 0] + rot[1, 1] * corners[i, 1] + rot[1, 2] * corners[i, 2]
-            rcz = rot[2, 0] * corners[i, 0] + rot[2, 1] * corners[i, 1] + rot[2, 2] * corners[i, 2]
-            cwx = p[0] + rcx
-            cwy = p[1] + rcy
-            cwz = p[2] + rcz
-            vcx = v[0] + ww1 * rcz - ww2 * rcy
-            vcy = v[1] + ww2 * rcx - ww0 * rcz
-            vcz = v[2] + ww0 * rcy - ww1 * rcx
-            # keep node world positions while the root moves in the plane
-            ds = (cwx - prev_corner[i, 0]) * ux + (cwy - prev_corner[i, 1]) * uy
-            for k in range(n_nodes):
-                pos[i, k, 0] -= ds
-            prev_corner[i, 0] = cwx
-            prev_corner[i, 1] = cwy
-            prev_corner[i, 2] = cwz
+            ux, uy, dwz, horiz = _leg_axes(rot, cy[i], sy[i])
+            lx, ly = -uy, ux
+            rcx, rcy, rcz = _corner_offset(rot, corners[i])
+            vcx = xi[0] + ww1 * rcz - ww2 * rcy
+            vcy = xi[1] + ww2 * rcx - ww0 * rcz
+            vcz = xi[2] + ww0 * rcy - ww1 * rcx
             root[0] = 0.0
-            root[1] = cwz
+            root[1] = p2 + rcz
             root[2] = vcx * ux + vcy * uy
             root[3] = vcz
             root[4] = rest_theta0 + np.arctan2(dwz, horiz)
             root[5] = ww0 * uy - ww1 * ux  # omega . (u x e_z)
+            # each node's velocity across the plane: the torso's rigid motion there, j . (v, w)
+            w0 = rcx * ly - rcy * lx
+            lat_v = lx * xi[0] + ly * xi[1]
+            turn = lx * ww1 - ly * ww0
+            for k in range(1, n_nodes):
+                vlat[k] = lat_v + (pos[i, k, 1] - p2) * turn + (w0 + pos[i, k, 0]) * ww2
             # servo: first-order lag towards the command, at most as fast as its load allows
             servo[i] = servo_step(
                 servo[i], servo_cmd[i], h, servo_par[0], out[i, O_T] * pulley, servo_par[1], servo_par[2], servo_par[3]
@@ -184,6 +373,7 @@ def coupled_steps(
                     par[i],
                     free_length,
                     root,
+                    vlat,
                     h,
                     normal[i],
                     out[i],
@@ -219,6 +409,7 @@ def coupled_steps(
                     par[i],
                     free_length,
                     root,
+                    vlat,
                     h,
                     normal[i],
                     out[i],
@@ -234,56 +425,132 @@ def coupled_steps(
             fwz = out[i, O_FZ]
             mwx = out[i, O_M] * uy
             mwy = -out[i, O_M] * ux
-            # sideways foot friction, through the leg's out-of-plane rigidity
-            nrm = out[i, O_N]
-            if nrm > 0.0:
-                tip_s = pos[i, n_nodes - 1, 0]
-                rfx = cwx + tip_s * ux - p[0]
-                rfy = cwy + tip_s * uy - p[1]
-                rfz = pos[i, n_nodes - 1, 1] - p[2]
-                vfx = v[0] + ww1 * rfz - ww2 * rfy
-                vfy = v[1] + ww2 * rfx - ww0 * rfz
-                vl = -vfx * uy + vfy * ux  # along lat = (-uy, ux, 0)
-                fl = -mu_lat * nrm * max(-1.0, min(1.0, vl / v_eps))
-                flx = -fl * uy
-                fly = fl * ux
-                tx += -rfz * fly
-                ty += rfz * flx
-                tz += rfx * fly - rfy * flx
-                fx_t += flx
-                fy_t += fly
-                reaction[i, 0] = fwx + flx
-                reaction[i, 1] = fwy + fly
-            else:
-                reaction[i, 0] = fwx
-                reaction[i, 1] = fwy
+            load[0] += fwx
+            load[1] += fwy
+            load[2] += fwz
+            load[3] += rcy * fwz - rcz * fwy + mwx
+            load[4] += rcz * fwx - rcx * fwz + mwy
+            load[5] += rcx * fwy - rcy * fwx
+            # friction across the plane on the pressed nodes (coulomb_friction with the node's slip along the
+            # plane after its step), linearised in the torso's velocity: F = F0 - c j . (xi_new - xi). With
+            # j = (lat, -ly z, lx z, w) per node, the leg's share of the load and of C = sum c j j^T needs
+            # only sums over its nodes of f, f z, f w and of c, c z, c w, c z z, c z w, c w w.
+            lateral = 0.0
+            sf = sfz = sfw = sc = scz = scw = sczz = sczw = scww = 0.0
+            for k in range(1, n_nodes):
+                nrm = normal[i, k]
+                if nrm <= 0.0:
+                    continue
+                vs = vel[i, k, 0]
+                _, f0 = coulomb_friction(vs, vlat[k], nrm, mu, v_eps)
+                c = friction_slope(vlat[k], vs, nrm, mu, v_eps)
+                lateral += f0
+                f = f0 + c * vlat[k]  # vlat = j . xi, the slip it was taken at
+                z = pos[i, k, 1] - p2
+                w = w0 + pos[i, k, 0]
+                sf += f
+                sfz += f * z
+                sfw += f * w
+                sc += c
+                scz += c * z
+                scw += c * w
+                sczz += c * z * z
+                sczw += c * z * w
+                scww += c * w * w
+            if sc > 0.0 or sf != 0.0:
+                load[0] += sf * lx
+                load[1] += sf * ly
+                load[3] += -ly * sfz
+                load[4] += lx * sfz
+                load[5] += sfw
+                sc *= h
+                scz *= h
+                scw *= h
+                sczz *= h
+                sczw *= h
+                scww *= h
+                damp[0, 0] += sc * lx * lx
+                damp[0, 1] += sc * lx * ly
+                damp[1, 1] += sc * ly * ly
+                damp[0, 3] += -lx * ly * scz
+                damp[0, 4] += lx * lx * scz
+                damp[0, 5] += lx * scw
+                damp[1, 3] += -ly * ly * scz
+                damp[1, 4] += lx * ly * scz
+                damp[1, 5] += ly * scw
+                damp[3, 3] += ly * ly * sczz
+                damp[3, 4] += -lx * ly * sczz
+                damp[3, 5] += -ly * sczw
+                damp[4, 4] += lx * lx * sczz
+                damp[4, 5] += lx * sczw
+                damp[5, 5] += scww
+            out[i, O_FL] = lateral
+            reaction[i, 0] = fwx + lateral * lx
+            reaction[i, 1] = fwy + lateral * ly
             reaction[i, 2] = fwz
             reaction[i, 3] = mwx
             reaction[i, 4] = mwy
             reaction[i, 5] = 0.0
-            fx_t += fwx
-            fy_t += fwy
-            fz_t += fwz
-            tx += rcy * fwz - rcz * fwy + mwx
-            ty += rcz * fwx - rcx * fwz + mwy
-            tz += rcx * fwy - rcy * fwx
         if hold_torso:
             continue
-        torso_step(torso, fx_t, fy_t, fz_t, tx, ty, tz, rot, torso_mass, inertia, inertia_inv, h)
+        # momentum about the torso centre, plus the step's impulse; the friction's slope implicit:
+        # (A + h C) xi_new = A xi + h (load - C xi)... written with load holding F0 + C xi
+        for a in range(6):
+            for b in range(a):
+                damp[a, b] = damp[b, a]
+        for a in range(6):
+            acc = 0.0
+            for b in range(6):
+                acc += aug[a, b] * xi[b]
+                system[a, b] = aug[a, b] + damp[a, b]
+            rhs6[a] = acc + h * load[a]
+        solve_spd(system, rhs6, xi_new)
+        # the impulse applied, friction at the velocity it ends with: h load - h C xi_new
+        for a in range(6):
+            acc = 0.0
+            for b in range(6):
+                acc += damp[a, b] * xi_new[b]
+            load[a] = h * load[a] - acc
+        momentum[0] += load[0]
+        momentum[1] += load[1]
+        momentum[2] += load[2]
+        # its moment about the world origin: about the centre, plus p x impulse
+        momentum[3] += load[3] + p1 * load[2] - p2 * load[1]
+        momentum[4] += load[4] + p2 * load[0] - p0 * load[2]
+        momentum[5] += load[5] + p0 * load[1] - p1 * load[0]
+        # the nodes move across their planes with the torso's new velocity there (positions follow the
+        # velocities the momentum was counted with)
+        for i in range(n_legs):
+            ux, uy, _, _ = _leg_axes(rot, cy[i], sy[i])
+            lx, ly = -uy, ux
+            rcx, rcy, _ = _corner_offset(rot, corners[i])
+            w0 = rcx * ly - rcy * lx
+            lat_v = lx * xi_new[0] + ly * xi_new[1]
+            turn = lx * xi_new[4] - ly * xi_new[3]
+            for k in range(1, n_nodes):
+                eta[i, k] += h * (lat_v + (pos[i, k, 1] - p2) * turn + (w0 + pos[i, k, 0]) * xi_new[5])
+        torso[0] += h * xi_new[0]
+        torso[1] += h * xi_new[1]
+        torso[2] += h * xi_new[2]
+        wb0 = rot[0, 0] * xi_new[3] + rot[1, 0] * xi_new[4] + rot[2, 0] * xi_new[5]
+        wb1 = rot[0, 1] * xi_new[3] + rot[1, 1] * xi_new[4] + rot[2, 1] * xi_new[5]
+        wb2 = rot[0, 2] * xi_new[3] + rot[1, 2] * xi_new[4] + rot[2, 2] * xi_new[5]
+        advance_quaternion(torso, wb0, wb1, wb2, h)
     return n_steps
 
 
 @njit(cache=True, parallel=True)
 def batch_steps(
     torso,
+    momentum,
     torso_mass,
     inertia,
-    inertia_inv,
     gravity,
     corners,
     yaw,
     rest_theta0,
     pos,
+    eta,
     vel,
     theta,
     omega,
@@ -303,8 +570,9 @@ def batch_steps(
     pulley,
     free0,
     prev_corner,
+    prev_u,
     f_ext,
-    mu_lat,
+    mu,
     v_eps,
     implicit,
     max_age,
@@ -330,14 +598,15 @@ def batch_steps(
     for b in prange(torso.shape[0]):
         done[b] = coupled_steps(
             torso[b],
+            momentum[b],
             torso_mass,
             inertia,
-            inertia_inv,
             gravity,
             corners,
             yaw,
             rest_theta0,
             pos[b],
+            eta[b],
             vel[b],
             theta[b],
             omega[b],
@@ -357,8 +626,9 @@ def batch_steps(
             pulley,
             free0[b],
             prev_corner[b],
+            prev_u[b],
             f_ext[b],
-            mu_lat,
+            mu,
             v_eps,
             implicit,
             max_age,
@@ -405,7 +675,6 @@ class CosseratPlant:
         # each root node moves with its corner, so its mass rides with the torso
         self.torso_mass = cfg.robot.torso.mass + 4 * m.mass[0]
         self.inertia = self.torso_mass / 12.0 * np.diag([ly**2 + lz**2, lx**2 + lz**2, lx**2 + ly**2])
-        self.inertia_inv = np.linalg.inv(self.inertia)
         self.yaw = np.deg2rad(np.asarray(leg_cfg.yaw_deg, dtype=float))
         # leg roots on the torso's bottom face, relative to the torso centre
         self.corners = np.column_stack(
@@ -417,17 +686,19 @@ class CosseratPlant:
         z0 = lz / 2 + drop + (x0[5] - robot.stance_height)
         self.start_pose = np.array([x0[3], x0[4], lz / 2 + drop, 0.0, 0.0, x0[2]])  # position, roll pitch yaw
         self.target_pose = np.array([x0[3], x0[4], z0, *x0[0:3]])
-        self.torso = np.concatenate([pose_between(self.start_pose, self.target_pose, 0.0), x0[9:12], np.zeros(3)])
-        self.torso[10:13] = quat_to_rot(euler_to_quat(*x0[0:3])).T @ x0[6:9]  # body-frame angular velocity
+        self.torso = np.concatenate([pose_between(self.start_pose, self.target_pose, 0.0), np.zeros(6)])
+        self.momentum = np.zeros(6)  # linear, and angular about the world origin (coupled_steps)
         rot = quat_to_rot(self.torso[3:7])
         self.pos = np.repeat(m.rest_pos[None], 4, axis=0).copy()
         corner_w = self.torso[0:3] + self.corners @ rot.T
         self.pos[:, :, 1] += (corner_w[:, 2] - m.rest_pos[0, 1])[:, None]
+        self.eta = np.zeros((4, n))  # each node's offset across its leg's plane
         self.vel = np.zeros_like(self.pos)
         self.theta = np.repeat(m.rest_theta[None], 4, axis=0).copy()
         self.omega = np.zeros_like(self.theta)
         self.prev_corner = corner_w.copy()
-        self.par = np.tile(leg_params(cfg), (4, 1))  # one row per leg, on the ground, no tip load
+        self.prev_u = np.column_stack([np.cos(self.yaw), np.sin(self.yaw)])  # the planes' directions (level torso)
+        self.par = np.tile(leg_params(cfg, ground=cfg.sim.ground), (4, 1))  # one row per leg, no tip load
         # free cable with the servo at zero; the servo angle then sets each leg's free length
         self.free0 = np.full(4, rest_free_length(m, self.par[0], cfg.robot.tendon.slack))
         self.servo = np.zeros(4)  # servo (tendon) angle, rad
@@ -458,6 +729,7 @@ class CosseratPlant:
         self.marker_nodes = sorted({0, (n - 1) // 3, 2 * (n - 1) // 3, n - 1})
         self._legs: np.ndarray | None = None  # leg_world's, until the legs next move
         self._settle_legs(SETTLE_S)
+        self._release(x0[9:12], x0[6:9])
 
     # ------------------------------------------------------------------ Plant interface
     def state(self) -> np.ndarray:
@@ -483,7 +755,8 @@ class CosseratPlant:
         (the controller's feet, the log's markers, shapes and 3D scene all read it)."""
         if self._legs is None:
             corners, u = self._plane()
-            out = corners[:, None, :] + self.pos[:, :, 0:1] * u[:, None, :]
+            lat = np.column_stack([-u[:, 1], u[:, 0], np.zeros(4)])
+            out = corners[:, None, :] + self.pos[:, :, 0:1] * u[:, None, :] + self.eta[:, :, None] * lat[:, None, :]
             out[:, :, 2] = self.pos[:, :, 1]
             out.flags.writeable = False
             self._legs = out
@@ -515,7 +788,11 @@ class CosseratPlant:
                 "servo_deg": np.rad2deg(self.servo),
                 "command_deg": np.rad2deg(self.servo_cmd),
             },
-            "/legs/contact": {"normal_n": self.out[:, O_N].copy(), "friction_n": self.out[:, O_F].copy()},
+            # friction_n: the size of the leg's friction, along its plane and across it
+            "/legs/contact": {
+                "normal_n": self.out[:, O_N].copy(),
+                "friction_n": np.hypot(self.out[:, O_F], self.out[:, O_FL]),
+            },
             "/legs/root": {"force_n": self.reaction[:, 0:3].copy(), "moment_nm": self.reaction[:, 3:6].copy()},
         }
 
@@ -532,15 +809,13 @@ class CosseratPlant:
         the common angle at which the legs carry the robot's weight there (a few
         Newton steps on the total normal force, with the actuation map's slope), as a
         robot is powered up before it is let go: at zero tendon the legs cannot carry
-        it, and a servo at its rated speed needs about 0.3 s to wind in. The torso is
-        then released with the scenario's velocities.
+        it, and a servo at its rated speed needs about 0.3 s to wind in. The robot is
+        then released with the scenario's velocities (:meth:`_release`).
         """
         weight = self.robot.mass * self.cfg.sim.gravity
         slope = 4.0 * self.cfg.robot.actuation.slope_n_per_deg
         top = self.cfg.robot.leg.tendon_max_deg
         angle = float(tendon_angle_deg(np.array([weight / 4.0]), self.cfg.robot.actuation, top)[0])
-        velocities = self.torso[7:13].copy()
-        self.torso[7:13] = 0.0
         lowering = SETTLE_ITERATIONS // 2
         for k in range(SETTLE_ITERATIONS):
             self.servo[:] = self.servo_cmd[:] = np.deg2rad(angle)
@@ -551,8 +826,76 @@ class CosseratPlant:
             else:
                 self._run(seconds / SETTLE_ITERATIONS, np.zeros(3), hold=True)
             angle = float(np.clip(angle + (weight - self.out[:, O_N].sum()) / slope, 0.0, top))
-        self.torso[7:13] = velocities
         self.time = 0.0
+
+    def _release(self, linear: np.ndarray, angular: np.ndarray) -> None:
+        """Let the robot go with the torso moving at ``linear`` and ``angular`` (world) velocity: the whole
+        robot moves with it as one rigid body (each leg's nodes and elements get the rigid motion of its
+        root frame on top of what they had), and the momentum state is the one of that motion."""
+        rot = quat_to_rot(self.torso[3:7])
+        corners, u = self._plane()
+        p = self.torso[0:3]
+        for i in range(4):
+            axis = np.cross(u[i], [0.0, 0.0, 1.0])  # the in-plane angle's axis
+            r = self.leg_world()[i] - p
+            rigid = linear + np.cross(angular, r)
+            self.vel[i, :, 0] += rigid @ u[i]
+            self.vel[i, :, 1] += rigid[:, 2]
+            self.omega[i] += angular @ axis
+        aug = self._augmented_inertia()
+        pi = aug @ np.concatenate([linear, angular])
+        self.momentum[:] = np.concatenate([pi[0:3], pi[3:6] + np.cross(p, pi[0:3])])
+        self.torso[7:10] = linear
+        self.torso[10:13] = rot.T @ angular
+
+    def _augmented_inertia(self) -> np.ndarray:
+        """The 6x6 inertia of the torso and the legs' motion across their planes (:func:`augmented_inertia`)."""
+        out = np.empty((6, 6))
+        rot = quat_to_rot(self.torso[3:7])
+        augmented_inertia(
+            self.torso,
+            rot,
+            self.torso_mass,
+            self.inertia,
+            self.corners,
+            np.cos(self.yaw),
+            np.sin(self.yaw),
+            self.pos,
+            self.model.mass,
+            out,
+        )
+        return out
+
+    def momentum_world(self) -> tuple[np.ndarray, np.ndarray]:
+        """The whole robot's linear momentum and its angular momentum about the world origin, from the
+        velocities of every part: the torso, every leg node (along its plane its own velocity, across it
+        the torso's rigid motion there) and every element's spin in its plane."""
+        p = self.torso[0:3]
+        rot = quat_to_rot(self.torso[3:7])
+        v = self.torso[7:10]
+        w = rot @ self.torso[10:13]
+        linear = self.torso_mass * v
+        angular = np.cross(p, linear) + rot @ (self.inertia @ self.torso[10:13])
+        _, u = self._plane()
+        legs = self.leg_world()
+        m = self.model.mass[1:, None]
+        for i in range(4):
+            lat = np.cross([0.0, 0.0, 1.0], u[i])
+            r = legs[i, 1:]
+            vlat = (v + np.cross(w, r - p)) @ lat
+            velocity = self.vel[i, 1:, 0:1] * u[i] + vlat[:, None] * lat
+            velocity[:, 2] += self.vel[i, 1:, 1]
+            linear = linear + (m * velocity).sum(axis=0)
+            angular = angular + np.cross(r, m * velocity).sum(axis=0)
+            angular = angular + (self.model.inertia * self.omega[i]).sum() * np.cross(u[i], [0.0, 0.0, 1.0])
+        return linear, angular
+
+    def centre_of_mass(self) -> np.ndarray:
+        """The whole robot's centre of mass (world): the torso (with the legs' root nodes) and every leg node."""
+        m = self.model.mass[1:]
+        legs = self.leg_world()[:, 1:]
+        total = self.torso_mass * self.torso[0:3] + np.einsum("k,lkj->j", m, legs)
+        return total / (self.torso_mass + 4 * m.sum())
 
     def step(self, command: TendonCommand, period: float, external_force: np.ndarray | None = None) -> None:
         """Advance ``period`` with the servos tracking the commanded angles (ground forces are the legs' own)."""
@@ -580,14 +923,15 @@ class CosseratPlant:
         m = self.model
         return (
             own["torso"],
+            own["momentum"],
             self.torso_mass,
             self.inertia,
-            self.inertia_inv,
             self.cfg.sim.gravity,
             self.corners,
             self.yaw,
             float(m.rest_theta[0]),
             own["pos"],
+            own["eta"],
             own["vel"],
             own["theta"],
             own["omega"],
@@ -607,6 +951,7 @@ class CosseratPlant:
             self.cfg.robot.leg.pulley_radius,
             own["free0"],
             own["prev_corner"],
+            own["prev_u"],
             f_ext,
             self.cfg.robot.contact.friction,
             self.cfg.robot.contact.slip_velocity,
@@ -633,15 +978,27 @@ class CosseratPlant:
             )
 
     def apply_impulse(self, linear: np.ndarray, angular: np.ndarray) -> None:
-        rot = quat_to_rot(self.torso[3:7])
-        self.torso[7:10] += np.asarray(linear, dtype=float) / self.torso_mass
-        self.torso[10:13] += self.inertia_inv @ (rot.T @ np.asarray(angular, dtype=float))
+        """A push on the torso (world, about its centre): the momentum takes it, the velocity follows."""
+        linear = np.asarray(linear, dtype=float)
+        self.momentum[0:3] += linear
+        self.momentum[3:6] += np.asarray(angular, dtype=float) + np.cross(self.torso[0:3], linear)
+        _velocity_from_momentum(
+            self.torso,
+            self.momentum,
+            quat_to_rot(self.torso[3:7]),
+            self._augmented_inertia(),
+            np.empty((6, 6)),
+            np.empty(6),
+            np.empty(6),
+        )
 
 
 # each robot's own arrays (state, servo, contact output): a batch stacks them along a first axis
 _OWN = (
     "torso",
+    "momentum",
     "pos",
+    "eta",
     "vel",
     "theta",
     "omega",
@@ -650,6 +1007,7 @@ _OWN = (
     "servo_cmd",
     "free0",
     "prev_corner",
+    "prev_u",
     "normal",
     "out",
     "reaction",

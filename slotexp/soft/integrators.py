@@ -31,6 +31,7 @@ from .loads import (
     contact_proximal,
     damping_reaction,
     dissipative_params,
+    root_frame_velocity,
     root_reaction,
     tendon_jacobian,
     tendon_length,
@@ -134,6 +135,7 @@ def symplectic_once(
     par,
     free_length,
     root,
+    vlat,
     h,
     normal,
     out,
@@ -145,7 +147,9 @@ def symplectic_once(
     """One symplectic (semi-implicit) Euler step with implicit damping, contact and friction.
 
     ``root`` = [s, z, vs, vz, theta, omega] of the root over the step; ``free_length``
-    is the tendon's L_free over the step (state, not in ``par``: the servo changes it).
+    is the tendon's L_free over the step (state, not in ``par``: the servo changes it);
+    ``vlat`` (N,) each node's velocity across the leg's plane, which its friction sees
+    (the torso's motion there; zeros for a clamped leg).
     ``cth``/``sth`` must hold the current directors (kept current here). ``normal`` (N,)
     receives each node's contact normal force; ``force``/``moment`` are work arrays.
     """
@@ -180,30 +184,34 @@ def symplectic_once(
     total_f = 0.0
     rx = 0.0
     rz = 0.0
+    rm = 0.0
     for i in range(1, n):
         hm = h * inv_mass[i]
-        vx = (vel[i, 0] + hm * force[i, 0] + hc * root[2]) * damp
-        vz = (vel[i, 1] + hm * force[i, 1] + hc * root[3]) * damp
+        gx, gz = root_frame_velocity(pos, i, root)  # damped towards the root frame's rigid motion
+        vx = (vel[i, 0] + hm * force[i, 0] + hc * gx) * damp
+        vz = (vel[i, 1] + hm * force[i, 1] + hc * gz) * damp
         nrm = 0.0
         if ground and pos[i, 1] < 0.0:
             vx, vz, nrm, fric = contact_proximal(
-                vx, vz, vel[i, 1], force[i, 1], -pos[i, 1], hm, hc, damp, root[3], k_c, d_c, mu, v_eps
+                vx, vz, vel[i, 1], force[i, 1], -pos[i, 1], hm, hc, damp, gz, vlat[i], k_c, d_c, mu, v_eps
             )
             total_f += fric
         normal[i] = nrm
         total_n += nrm
         vel[i, 0] = vx
         vel[i, 1] = vz
-        rx += mass[i] * (vx - root[2])
-        rz += mass[i] * (vz - root[3])
+        px = mass[i] * (vx - gx)
+        pz = mass[i] * (vz - gz)
+        rx += px
+        rz += pz
+        rm += (pos[i, 0] - pos[0, 0]) * pz - (pos[i, 1] - pos[0, 1]) * px
         pos[i, 0] += h * vx
         pos[i, 1] += h * vz
-    rm = 0.0
     for e in range(n_el):
         w = (omega[e] + h * inv_inertia[e] * moment[e] + hc * root[5]) * damp
         omega[e] = w
         rm += inertia[e] * (w - root[5])
-    # the relative-velocity damping acts between leg and torso: its reaction goes to the root
+    # the damping acts between leg and torso: its reaction (force, moment about the root) goes to the root
     out[O_FX] += c * rx
     out[O_FZ] += c * rz
     out[O_M] += c * rm
@@ -234,7 +242,8 @@ def step_symplectic(
     normal,
     out,
 ):
-    """``n_steps`` of :func:`symplectic_once` with the root held."""
+    """``n_steps`` of :func:`symplectic_once` with the root held (nothing slips across the plane)."""
+    vlat = np.zeros(pos.shape[0])
     force = np.zeros(pos.shape)
     moment = np.zeros(theta.shape[0])
     cth = np.zeros(theta.shape[0])
@@ -262,6 +271,7 @@ def step_symplectic(
             par,
             free_length,
             root,
+            vlat,
             h,
             normal,
             out,
@@ -293,6 +303,7 @@ def implicit_once(
     par,
     free_length,
     root,
+    vlat,
     h,
     normal,
     out,
@@ -358,12 +369,13 @@ def implicit_once(
     cable = 0.0 if tension <= 0.0 else (1.0 if taut else 2.0)  # slack, taut, at the servo's stall
     i_cable, i_age, i_gz, i_step = n + J_CABLE, n + J_AGE, n + J_GZ, n + J_STEP
     fresh = jmeta[i_age] >= max_age or jmeta[i_step] != h or jmeta[i_cable] != cable
-    # the velocity-dependent forces at the start of the step: damping towards the root, contact
+    # the velocity-dependent forces at the start of the step: damping towards the root frame's rigid motion, contact
     for i in range(n):
-        for comp in range(2):
-            d = 3 * i + comp
-            rhs[d] = h * (force[i, comp] + c * mass[i] * (root[2 + comp] - vel[i, comp]))
-            vflat[d] = vel[i, comp]
+        gx, gz = root_frame_velocity(pos, i, root)
+        rhs[3 * i] = h * (force[i, 0] + c * mass[i] * (gx - vel[i, 0]))
+        rhs[3 * i + 1] = h * (force[i, 1] + c * mass[i] * (gz - vel[i, 1]))
+        vflat[3 * i] = vel[i, 0]
+        vflat[3 * i + 1] = vel[i, 1]
     for e in range(n_el):
         d = 3 * e + 2
         rhs[d] = h * (moment[e] + c * inertia[e] * (root[5] - omega[e]))
@@ -373,7 +385,7 @@ def implicit_once(
     for i in range(1, n):
         nrm, fx, regime = 0.0, 0.0, 0
         if ground and pos[i, 1] < 0.0:
-            nrm, fx, _, regime = contact_force(-pos[i, 1], vel[i, 0], vel[i, 1], k_c, d_c, mu, v_eps)
+            nrm, fx, _, regime = contact_force(-pos[i, 1], vel[i, 0], vel[i, 1], vlat[i], k_c, d_c, mu, v_eps)
             rhs[3 * i] += h * fx
             rhs[3 * i + 1] += h * nrm
         normal[i] = nrm
@@ -394,8 +406,8 @@ def implicit_once(
         for i in range(1, n):
             regime = 0
             if ground and pos[i, 1] < 0.0:
-                nrm, _, sat, regime = contact_force(-pos[i, 1], vel[i, 0], vel[i, 1], k_c, d_c, mu, v_eps)
-                contact_jacobian(i, nrm, sat, regime, h, k_c, d_c, mu, v_eps, kband, lu)
+                nrm, _, g_x, regime = contact_force(-pos[i, 1], vel[i, 0], vel[i, 1], vlat[i], k_c, d_c, mu, v_eps)
+                contact_jacobian(i, nrm, g_x, regime, h, k_c, d_c, mu, v_eps, kband, lu)
             jmeta[i] = regime
         lu += kband
         for i in range(n):
@@ -453,10 +465,13 @@ def implicit_once(
     for i in range(n):
         vel[i, 0] = x[3 * i]
         vel[i, 1] = x[3 * i + 1]
+    for e in range(n_el):
+        omega[e] = x[3 * e + 2]
+    damp_x, damp_z, damp_m = damping_reaction(pos, vel, omega, mass, inertia, par, root)  # where it was applied
+    for i in range(n):
         pos[i, 0] += h * vel[i, 0]
         pos[i, 1] += h * vel[i, 1]
     for e in range(n_el):
-        omega[e] = x[3 * e + 2]
         theta[e] += h * omega[e]
     # reaction on the root, consistent with the implicit step (momentum is exchanged exactly): the root
     # rows of h^2 (elastic + tendon) K
@@ -473,14 +488,19 @@ def implicit_once(
         gx = 0.0
         for d in range(nd):
             gx += g[d] * x[d]
-        out[O_FX] -= h * par[P_TK] * g[0] * gx
-        out[O_FZ] -= h * par[P_TK] * g[1] * gx
-        tension_end = tension + par[P_TK] * h * (gx - par[P_TOFF] * root[5])
+        # the tension's change over the step, as the nodes move and the root angle turns (the same change the
+        # nodes felt through the rank-one term): the root's share of it
+        stretch_rate = gx - par[P_TOFF] * root[5]
+        out[O_FX] -= h * par[P_TK] * g[0] * stretch_rate
+        out[O_FZ] -= h * par[P_TK] * g[1] * stretch_rate
+        tension_end = tension + par[P_TK] * h * stretch_rate
     k0 = ei[0] / voronoi[0]
     out[O_M] = k0 * (theta[0] - root[4] - h * root[5])
     if tension > 0.0:
         out[O_M] += tension_end * par[P_TOFF]
-    damping_reaction(vel, omega, mass, inertia, par, root, out)
+    out[O_FX] += damp_x
+    out[O_FZ] += damp_z
+    out[O_M] += damp_m
     _finish_step(pos, tension, total_n, total_f, out)
 
 
@@ -522,8 +542,10 @@ def step_implicit(
     jmeta,
     max_age,
 ):
-    """``n_steps`` of :func:`implicit_once` with the root held (the Jacobian state is the caller's)."""
+    """``n_steps`` of :func:`implicit_once` with the root held (the Jacobian state is the caller's; nothing
+    slips across the plane)."""
     nd = 3 * pos.shape[0] - 1
+    vlat = np.zeros(pos.shape[0])
     force = np.zeros(pos.shape)
     moment = np.zeros(theta.shape[0])
     rhs = np.zeros(nd)
@@ -548,6 +570,7 @@ def step_implicit(
             par,
             free_length,
             root,
+            vlat,
             h,
             normal,
             out,

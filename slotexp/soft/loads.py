@@ -1,13 +1,18 @@
 """Loads on one leg besides its elasticity (:mod:`slotexp.soft.rod`), as numba kernels.
 
 - gravity on the node masses;
-- viscous damping of each node's velocity (and each element's angular velocity)
-  relative to the root, rate ``c`` (1/s), treated implicitly; it acts between leg
-  and torso, so its reaction goes to the root;
+- viscous damping of the leg's deformation rate, rate ``c`` (1/s): each node's
+  velocity relative to the rigid motion of the root frame (its translation and its
+  turning in the plane) and each element's angular velocity relative to the root's,
+  treated implicitly. Moving rigidly with the torso is not damped; the damping acts
+  between leg and torso, so its reaction (force and moment) goes to the root;
 - penalty ground contact at every node below z = 0, N = max(0, -k z - d dz/dt),
   with the damping term implicit so it stays stable at any step;
-- regularised Coulomb friction along the leg plane, F = -mu N sat(v / v_eps), on the
-  actual normal force N, solved implicitly (a proximal step, unconditionally stable);
+- regularised isotropic Coulomb friction, F = -mu N v / max(|v|, v_eps), on the
+  actual normal force N and the node's whole slip velocity v: along the leg's plane
+  (the node's own velocity, solved implicitly) and across it (the torso's rigid
+  motion at the node: the leg is rigid out of its plane); the coupled plant applies
+  the part across the plane to the torso;
 - the tendon: a cable at ``offset`` below the centreline over the proximal
   elements 0..na-1, anchored at node na. Its length is
   L = sum_e a_e + offset (theta_{na-1} - theta_0) (a_e the elements' axial
@@ -177,22 +182,37 @@ def conservative_forces(
 
 
 @njit(cache=True)
-def damping_reaction(vel, omega, mass, inertia, par, root, out):
-    """The relative-velocity damping acts between leg and torso: its reaction goes to the root."""
+def root_frame_velocity(pos, i, root):
+    """The velocity node ``i`` would have moving rigidly with the root frame: the root's velocity
+    (root[2], root[3]) plus its turning root[5] in the plane about the root node, at ``pos``."""
+    return root[2] - root[5] * (pos[i, 1] - pos[0, 1]), root[3] + root[5] * (pos[i, 0] - pos[0, 0])
+
+
+@njit(cache=True)
+def damping_reaction(pos, vel, omega, mass, inertia, par, root):
+    """The damping acts between leg and torso: its reaction on the root (force along the plane, vertical
+    force, moment about the root).
+
+    Node i feels -c m_i (v_i - v_rigid,i) at ``pos`` (the step's start, where the damping
+    was evaluated) and element e -c I_e (omega_e - root[5]); the torso feels the opposite
+    forces at the same points, so damping exchanges momentum and angular momentum exactly.
+    """
     c = par[P_C]
     if c == 0.0:
-        return
+        return 0.0, 0.0, 0.0
     fx = 0.0
     fz = 0.0
-    for i in range(1, vel.shape[0]):
-        fx += mass[i] * (vel[i, 0] - root[2])
-        fz += mass[i] * (vel[i, 1] - root[3])
     m = 0.0
+    for i in range(1, vel.shape[0]):
+        rx, rz = root_frame_velocity(pos, i, root)
+        px = mass[i] * (vel[i, 0] - rx)
+        pz = mass[i] * (vel[i, 1] - rz)
+        fx += px
+        fz += pz
+        m += (pos[i, 0] - pos[0, 0]) * pz - (pos[i, 1] - pos[0, 1]) * px
     for e in range(omega.shape[0]):
         m += inertia[e] * (omega[e] - root[5])
-    out[O_FX] += c * fx
-    out[O_FZ] += c * fz
-    out[O_M] += c * m
+    return c * fx, c * fz, c * m
 
 
 @njit(cache=True)
@@ -212,56 +232,113 @@ def dissipative_params(par):
     return par[P_C], par[P_K], par[P_D], par[P_MU], par[P_VEPS], par[P_GROUND] > 0.5
 
 
+# The implicit step's friction Jacobian is kept in levels a factor of 4 apart (a level is the largest slope it
+# stands for, so the factored W damps at least as much as the friction does: stable at any step); below the
+# last level the slope is left out (at most mu N / v_eps / 4^FRICTION_LEVELS, far below a node's m / h).
+FRICTION_LEVELS = 8
+
+
 @njit(cache=True)
-def contact_proximal(vx, vz, vel_z, force_z, depth, hm, hc, damp, root_vz, k_c, d_c, mu, v_eps):
+def coulomb_friction(vs, vlat, nrm, mu, v_eps):
+    """Isotropic regularised Coulomb friction on a node pressed with ``nrm`` and slipping at (``vs``, ``vlat``).
+
+    F = -mu N v / max(|v|, v_eps): it opposes the slip, its magnitude is mu N while the node
+    slides (|v| >= v_eps) and falls linearly to zero below the slip velocity, in every
+    direction alike. ``vs`` is the velocity along the leg's plane, ``vlat`` across it.
+    Returns (F_s, F_lat).
+    """
+    scale = mu * nrm / max(np.sqrt(vs * vs + vlat * vlat), v_eps)
+    return -scale * vs, -scale * vlat
+
+
+@njit(cache=True)
+def friction_slope(v, v_other, nrm, mu, v_eps):
+    """-dF/dv of :func:`coulomb_friction`'s component along ``v`` with the other component held:
+    mu N / v_eps below the slip velocity, mu N v_other^2 / |v|^3 while sliding (zero when the
+    node slides straight along ``v``, as 1-D Coulomb friction)."""
+    speed = np.sqrt(v * v + v_other * v_other)
+    if speed < v_eps:
+        return mu * nrm / v_eps
+    return mu * nrm * v_other * v_other / (speed * speed * speed)
+
+
+@njit(cache=True)
+def friction_level(slope, nrm, mu, v_eps):
+    """The Jacobian level of a sliding node's friction slope: 0 for the sticking slope mu N / v_eps, k for
+    slopes in (4^-(k+1), 4^-k] of it, -1 below the last level (the slope is left out)."""
+    top = mu * nrm / v_eps
+    level = 0
+    bound = top
+    while level < FRICTION_LEVELS:
+        if slope > 0.25 * bound:
+            return level
+        bound *= 0.25
+        level += 1
+    return -1
+
+
+@njit(cache=True)
+def contact_proximal(vx, vz, vel_z, force_z, depth, hm, hc, damp, vrig_z, vlat, k_c, d_c, mu, v_eps):
     """Contact and friction of one node below the ground in the symplectic step, both implicit.
 
     (``vx``, ``vz``) is the node's new velocity without contact, ``vel_z`` its old
     vertical velocity, ``force_z`` the vertical force on it, ``hm`` = h / m,
-    ``hc`` = h c, ``damp`` = 1 / (1 + h c). The normal force uses the new vertical
-    velocity (implicit contact damping); the friction solves the proximal step
-    v + beta sat(v / v_eps) = v_free, beta = h mu N / m. Returns the new velocity,
-    the normal force and the friction force (0, 0 when the node is not pressed).
+    ``hc`` = h c, ``damp`` = 1 / (1 + h c), ``vrig_z`` the vertical velocity the damping
+    pulls it towards, ``vlat`` its velocity across the leg's plane (the torso's, held over
+    the step). The normal force uses the new vertical velocity (implicit contact damping);
+    the friction is :func:`coulomb_friction`'s isotropic law solved as a proximal step on the
+    slip (vx, vlat): v + beta v / max(|v|, v_eps) = v_free, beta = h mu N / m, which keeps the
+    slip's direction and shortens it. Returns the new velocity, the normal force and the
+    friction force along the plane (0, 0 when the node is not pressed).
     """
-    vz_c = (vel_z + hm * (force_z + k_c * depth) + hc * root_vz) / (1.0 + hc + hm * d_c)
+    vz_c = (vel_z + hm * (force_z + k_c * depth) + hc * vrig_z) / (1.0 + hc + hm * d_c)
     nrm = k_c * depth - d_c * vz_c
     if nrm > 0.0:
         beta = hm * mu * nrm * damp
-        if abs(vx) <= v_eps + beta:
+        free = np.sqrt(vx * vx + vlat * vlat)
+        if free <= v_eps + beta:
             vx = vx / (1.0 + beta / v_eps)
         else:
-            vx = vx - beta * np.sign(vx)
-        return vx, vz_c, nrm, -mu * nrm * max(-1.0, min(1.0, vx / v_eps))
+            vx = vx * (1.0 - beta / free)
+        fric, _ = coulomb_friction(vx, vlat, nrm, mu, v_eps)
+        return vx, vz_c, nrm, fric
     return vx, vz, 0.0, 0.0
 
 
 @njit(cache=True)
-def contact_force(depth, vx, vz, k_c, d_c, mu, v_eps):
+def contact_force(depth, vx, vz, vlat, k_c, d_c, mu, v_eps):
     """Contact and friction of a node ``depth`` below the ground, for the implicit step.
 
-    N = k depth - d vz and F_x = -mu N sat(vx / v_eps). Returns (N, F_x, sat, regime):
-    regime 0 when the node is not pressed (N, F_x = 0), 1 sticking (|vx| < v_eps, where
-    the friction is a stiff viscous law), 2 sliding forwards, 3 backwards. The implicit
-    step's Jacobian changes structurally only when a regime does.
+    N = k depth - d vz and (F_x, F_lat) = :func:`coulomb_friction` at the slip (vx, ``vlat``).
+    Returns (N, F_x, g, regime) with g = F_x / (-mu N) (how much of the friction acts along
+    the plane) and the regime that fixes the Jacobian's structure: 0 not pressed (N, F_x = 0),
+    1 sticking (|v| < v_eps: a stiff viscous law), 2 or 3 sliding forwards or backwards with
+    no slope along the plane worth keeping, 4 + 2 k (+ 1 backwards) sliding with a slope at
+    level k (:func:`friction_level`: the node also slips across the plane). The implicit step
+    refactors its Jacobian when a node's regime changes.
     """
     nrm = k_c * depth - d_c * vz
     if nrm <= 0.0:
         return 0.0, 0.0, 0.0, 0
-    r = vx / v_eps
-    sat = max(-1.0, min(1.0, r))
-    if abs(r) < 1.0:
-        regime = 1
-    elif r > 0.0:
-        regime = 2
-    else:
-        regime = 3
-    return nrm, -mu * nrm * sat, sat, regime
+    fx, _ = coulomb_friction(vx, vlat, nrm, mu, v_eps)
+    g = -fx / (mu * nrm) if mu > 0.0 else 0.0
+    if vx * vx + vlat * vlat < v_eps * v_eps:
+        return nrm, fx, g, 1
+    back = 1 if vx < 0.0 else 0
+    level = friction_level(friction_slope(vx, vlat, nrm, mu, v_eps), nrm, mu, v_eps) if mu > 0.0 else -1
+    if level < 0:
+        return nrm, fx, g, 2 + back
+    return nrm, fx, g, 4 + 2 * level + back
 
 
 @njit(cache=True)
-def contact_jacobian(i, nrm, sat, regime, h, k_c, d_c, mu, v_eps, kband, band):
+def contact_jacobian(i, nrm, g, regime, h, k_c, d_c, mu, v_eps, kband, band):
     """Node ``i``'s contact and friction Jacobians for the implicit step (:func:`contact_force`'s law):
-    h^2 (-dF/dx) into ``kband`` and h (-dF/dv) into ``band``, in the step's banded layout."""
+    h^2 (-dF/dx) into ``kband`` and h (-dF/dv) into ``band``, in the step's banded layout.
+
+    The friction's slope along the plane is the largest its regime stands for (mu N / v_eps
+    sticking, the level's bound sliding), so the factored matrix damps at least as much as
+    the friction does."""
     if regime == 0:
         return
     h2 = h * h
@@ -271,6 +348,9 @@ def contact_jacobian(i, nrm, sat, regime, h, k_c, d_c, mu, v_eps, kband, band):
     band[dz, 4] += h * d_c  # dN/dvz = -d
     if regime == 1:
         band[dx, 4] += h * mu * nrm / v_eps  # dF_x/dvx on the sticking branch
-    # through N: dF_x/dz = mu k sat, dF_x/dvz = mu d sat
-    kband[dx, 5] -= h2 * mu * k_c * sat
-    band[dx, 5] -= h * mu * d_c * sat
+    elif regime >= 4:
+        level = (regime - 4) // 2
+        band[dx, 4] += h * mu * nrm / v_eps * 0.25**level
+    # through N: dF_x/dz = mu k g, dF_x/dvz = mu d g
+    kband[dx, 5] -= h2 * mu * k_c * g
+    band[dx, 5] -= h * mu * d_c * g

@@ -44,8 +44,9 @@ PAR = (
     "k_restore",
 )
 (P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFX, P_TFZ, P_TM, P_NA, P_PAPER, P_KR) = range(16)
-OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged")
-O_FX, O_FZ, O_M, O_T, O_N, O_F, O_DIV = range(7)
+# friction: along the leg's plane (the leg's own step); friction_lateral: across it (the coupled plant's torso step)
+OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged", "friction_lateral")
+O_FX, O_FZ, O_M, O_T, O_N, O_F, O_DIV, O_FL = range(8)
 
 
 def make_par(**kw: float) -> np.ndarray:
