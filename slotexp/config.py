@@ -38,6 +38,7 @@ __all__ = [
     "ControllerConfig",
     "GaitStyleConfig",
     "PrimitiveConfig",
+    "ScheduleConfig",
     "StateOffset",
     "Impulse",
     "NoiseConfig",
@@ -169,6 +170,12 @@ class ServoConfig:
     time_constant: float = num_field(0.005, lo=0.0, lo_open=True, unit="s")
     no_load_speed_rpm: float = num_field(57.0, lo=0.0, lo_open=True, unit="rpm")
     profile_velocity_rpm: float = num_field(57.0, lo=0.0, hi=61.0, unit="rpm")
+    # The horn map (slotexp.soft.servo.HornMap), per leg in robot.leg.names order: tendon angle =
+    # direction (horn - zero), the horn kept within [min, max]. Simulation and `slot hardware` share it.
+    horn_zero_deg: list[float] = vec_field([130.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
+    horn_direction: list[int] = vec_field([1, 1, 1, 1], length=4, lo=-1, hi=1, unit="")
+    horn_min_deg: list[float] = vec_field([105.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
+    horn_max_deg: list[float] = vec_field([255.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
 
 
 @dataclass
@@ -361,6 +368,29 @@ class ControllerConfig:
     # and the footholds of steps that land later in the horizon) relative to the CoM predicted for that step
     # (seed 001); "current": the feet where they stand and the swing targets, relative to the CoM now, one B
     footholds: str = choice_field("horizon", "horizon", "current")
+    # schedule: which of the schedules (conf/schedule/, `schedules.<name>`) it plays
+    schedule: str = "forward"
+
+
+# --------------------------------------------------------------------------- schedules
+@dataclass
+class ScheduleConfig:
+    """A gait as a schedule (``conf/schedule/<name>.yaml``): steps of per-leg angles, each held ``step_s``, repeated.
+
+    This is how the physical robot's own gaits are written: servo-horn angles (``units:
+    horn``, through the horn map ``robot.servo.horn_*``) or tendon angles (``units:
+    tendon``), keyed by leg name (``robot.leg.names``). ``heading_deg`` is the robot's
+    compass heading the gait walks on the robot (clockwise from forward: 90 is right),
+    ``robot_distance_per_cycle_m`` how far it goes per cycle there (None: not known).
+    ``controller=schedule`` plays one (``controller.schedule``); ``experiment=replay`` several.
+    """
+
+    name: str = ""
+    heading_deg: float | None = num_field(None, lo=-360.0, hi=360.0, unit="deg")
+    step_s: float = num_field(0.42, lo=0.0, lo_open=True, hi=60.0, unit="s")
+    units: str = choice_field("horn", "horn", "tendon")
+    robot_distance_per_cycle_m: float | None = num_field(None, lo=0.0, unit="m")
+    steps: list[dict[str, float]] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- scenarios
@@ -435,6 +465,7 @@ class SlotConfig:
     robot: RobotConfig = field(default_factory=RobotConfig)
     gait: GaitConfig = field(default_factory=GaitConfig)
     scenarios: dict[str, ScenarioConfig] = field(default_factory=dict)
+    schedules: dict[str, ScheduleConfig] = field(default_factory=dict)  # the robot's own gaits (conf/schedule/)
     solver: SolverConfig = field(default_factory=SolverConfig)
     plant: PlantConfig = field(default_factory=PlantConfig)
     controller: ControllerConfig = field(default_factory=ControllerConfig)
@@ -541,8 +572,8 @@ def validate(cfg: SlotConfig) -> SlotConfig:
         raise ConfigError(
             "robot.leg.model=paper has no Jacobian for the implicit step: add plant.integrator=symplectic sim.dt=2e-5"
         )
-    # only the gait controllers run the soft-leg library (the rigid controller has its own gait matrix)
-    library = cfg.controller.library if cfg.controller.name != "rigid" else {}
+    # only the gait controllers run the soft-leg library (rigid has its own gait matrix, schedule its steps)
+    library = cfg.controller.library if cfg.controller.name not in ("rigid", "schedule") else {}
     for name, style in library.items():
         ticks = cfg.mpc.rate_hz / style.frequency_hz
         if abs(ticks - round(ticks)) > 1e-6:
@@ -566,6 +597,15 @@ def validate(cfg: SlotConfig) -> SlotConfig:
         raise ConfigError(
             f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = {cfg.mpc.f_max:g} N: lower it"
         )
+    for name, schedule in cfg.schedules.items():
+        check_schedule(cfg, name, schedule)
+    if cfg.controller.name == "schedule":
+        if cfg.controller.schedule not in cfg.schedules:
+            raise ConfigError(
+                f"controller.schedule = {cfg.controller.schedule!r} is not a schedule: choose one of "
+                f"{', '.join(sorted(cfg.schedules)) or '(none)'} (conf/schedule/)"
+            )
+        check_schedule_ticks(cfg, cfg.schedules[cfg.controller.schedule], cfg.mpc.rate_hz, "mpc.rate_hz")
     exp = cfg.experiment
     if exp is None:
         from .jobs import run_names
@@ -575,6 +615,32 @@ def validate(cfg: SlotConfig) -> SlotConfig:
     if check is not None:
         check(cfg)
     return cfg
+
+
+def check_schedule(cfg: SlotConfig, name: str, schedule: ScheduleConfig) -> None:
+    """A schedule names every leg in every step, and nothing else."""
+    legs = list(cfg.robot.leg.names)
+    if not schedule.steps:
+        raise ConfigError(f"schedules.{name}.steps is empty: give at least one step {{{', '.join(legs)}}}")
+    for k, step in enumerate(schedule.steps):
+        if sorted(step) != sorted(legs):
+            raise ConfigError(
+                f"schedules.{name}.steps[{k}] names {', '.join(step) or 'no leg'}: each step needs exactly "
+                f"the legs {', '.join(legs)}"
+            )
+        for leg, angle in step.items():
+            if not math.isfinite(angle) or not -360.0 <= angle <= 360.0:
+                raise ConfigError(f"schedules.{name}.steps[{k}].{leg} = {angle!r} is not an angle in [-360, 360] deg")
+
+
+def check_schedule_ticks(cfg: SlotConfig, schedule: ScheduleConfig, rate_hz: float, key: str) -> None:
+    """A schedule's steps must last a whole number of controller ticks, or its timing would jitter by a tick."""
+    ticks = schedule.step_s * rate_hz
+    if abs(ticks - round(ticks)) > 1e-6:
+        raise ConfigError(
+            f"schedules.{schedule.name}.step_s = {schedule.step_s:g} s is not a whole number of ticks at {key} = "
+            f"{rate_hz:g} Hz: set {key} so that it is (e.g. {key}=50 for 0.42 s and 0.40 s steps)"
+        )
 
 
 MIN_RUN_STEPS = 2  # a closed-loop run's metrics need two samples at least

@@ -80,7 +80,7 @@ def test_full_loop_commands_the_mapped_tendon_angles(tmp_path: Path) -> None:
 
 def test_commands_beyond_the_servo_limits_are_clamped_and_logged(tmp_path: Path) -> None:
     with ServoEmulator() as emu, OdometryPublisher() as pub:
-        result, notes = run_on_emulator(emu, pub, tmp_path, "duration=1", "hardware.max_position_deg=[200,200,250,250]")
+        result, notes = run_on_emulator(emu, pub, tmp_path, "duration=1", "robot.servo.horn_max_deg=[200,200,255,255]")
         sent = {
             i: [int.from_bytes(w.data, "little") for w in emu.goal_writes(i) if w.instruction == "sync_write"]
             for i in (1, 2, 3, 4)
@@ -88,7 +88,7 @@ def test_commands_beyond_the_servo_limits_are_clamped_and_logged(tmp_path: Path)
         limits = [emu.register(i, "max_position_limit") for i in (1, 2, 3, 4)]
     assert result.exit_code == 0, result.message
     cap = round(200 * 4096 / 360)
-    assert limits == [cap, cap, round(250 * 4096 / 360), round(250 * 4096 / 360)]  # also written to EEPROM
+    assert limits == [cap, cap, round(255 * 4096 / 360), round(255 * 4096 / 360)]  # also written to EEPROM
     assert max(sent[1]) == cap and max(sent[2]) == cap and max(sent[3]) > cap
     log = read_log(result.log_path)
     clamped = log["/servos"][[f"clamped.{i}" for i in range(4)]].to_numpy(bool)

@@ -37,11 +37,12 @@ class HardwareConfig:
     """Four XL430-W250 servos on one Protocol 2.0 bus behind a U2D2.
 
     Per-servo lists are in ``robot.leg.names`` order (FL, RL, RR, FR). A tendon angle
-    theta (deg, from the force-to-tendon map) becomes the servo position
+    theta (deg, from the controller) becomes the servo position
     ``zero_offset_deg + direction * theta`` in servo-horn degrees, i.e.
-    ``round((zero_offset_deg + direction * theta) * 4096 / 360)`` XL430 ticks, after
-    theta is clamped to [0, robot.leg.tendon_max_deg] and the position to
-    [min_position_deg, max_position_deg].
+    ``round((zero_offset_deg + direction * theta) * 4096 / 360)`` XL430 ticks, the
+    position clamped to [min_position_deg, max_position_deg]. These four are the robot's
+    horn map (``robot.servo.horn_*``, :class:`slotexp.soft.servo.HornMap`), which the
+    simulation shares: they come from there, and a value that differs is refused.
     """
 
     name: str = "xl430"
@@ -100,6 +101,18 @@ def validate_hardware(cfg: HardwareSlotConfig) -> HardwareSlotConfig:
     """Ranges (via :func:`slotexp.config.validate`) and the hardware's cross-field rules."""
     validate(cfg)
     hw, od = cfg.hardware, cfg.odometry
+    servo = cfg.robot.servo
+    for key, shared in (
+        ("zero_offset_deg", "horn_zero_deg"),
+        ("direction", "horn_direction"),
+        ("min_position_deg", "horn_min_deg"),
+        ("max_position_deg", "horn_max_deg"),
+    ):
+        if [float(v) for v in getattr(hw, key)] != [float(v) for v in getattr(servo, shared)]:
+            raise ConfigError(
+                f"hardware.{key} = {getattr(hw, key)} differs from robot.servo.{shared} = {getattr(servo, shared)}: "
+                f"the horn map is shared with the simulation, set robot.servo.{shared} instead"
+            )
     if hw.baudrate not in SUPPORTED_BAUDRATES:
         raise ConfigError(
             f"hardware.baudrate = {hw.baudrate} is not supported: choose one of "

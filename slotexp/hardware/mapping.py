@@ -1,9 +1,11 @@
 """Tendon angle <-> servo position, and the limits every command is clamped to.
 
-``position_deg = zero_offset_deg + direction * theta`` (servo-horn degrees), sent as
-``round(position_deg * 4096 / 360)`` XL430 ticks. theta is first clamped to
-[0, tendon_max_deg] (the tendon's travel), then the position to the configured horn
-range, so no command can ever leave either.
+``position_deg = zero_offset_deg + direction * theta`` (servo-horn degrees, the robot's
+horn map, :class:`slotexp.soft.servo.HornMap`), sent as ``round(position_deg * 4096 / 360)``
+XL430 ticks, clamped to the servos' position limits, so no command can ever leave them.
+A negative theta is a horn below the zero: more slack, as the robot's own gaits command.
+The controllers keep their own commands within their maps (eq. 11 within
+[0, robot.leg.tendon_max_deg]).
 """
 
 from __future__ import annotations
@@ -43,10 +45,9 @@ class ServoMap:
         theta = np.asarray(tendon_deg, dtype=float)
         bad = ~np.isfinite(theta)
         theta = np.where(bad, 0.0, theta)
-        theta_c = np.clip(theta, 0.0, self.tendon_max_deg)
-        raw = np.rint((self.zero_deg + self.direction * theta_c) / DEG_PER_TICK).astype(np.int64)
+        raw = np.rint((self.zero_deg + self.direction * theta) / DEG_PER_TICK).astype(np.int64)
         ticks = np.clip(raw, self.min_ticks, self.max_ticks)
-        clamped = bad | (theta_c != theta) | (ticks != raw)
+        clamped = bad | (ticks != raw)
         return ticks, clamped
 
     def to_tendon_deg(self, ticks: np.ndarray) -> np.ndarray:
@@ -54,9 +55,7 @@ class ServoMap:
         return (np.asarray(ticks, dtype=float) * DEG_PER_TICK - self.zero_deg) * self.direction
 
     def tendon_range_deg(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per servo, the tendon angles [lo, hi] a command can actually reach (limits included)."""
+        """Per servo, the tendon angles [lo, hi] a command can actually reach (the position limits)."""
         a = self.to_tendon_deg(self.min_ticks)
         b = self.to_tendon_deg(self.max_ticks)
-        lo = np.clip(np.minimum(a, b), 0.0, self.tendon_max_deg)
-        hi = np.clip(np.maximum(a, b), 0.0, self.tendon_max_deg)
-        return lo, hi
+        return np.minimum(a, b), np.maximum(a, b)

@@ -20,6 +20,11 @@ speed 57 rpm (342 deg/s). ``slot hardware`` writes the same Profile Velocity
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import ServoConfig
 from ..jit import njit
 
 RPM_TO_RAD_S = 2.0 * 3.141592653589793 / 60.0
@@ -50,3 +55,37 @@ def servo_step(
     elif delta < -limit:
         delta = -limit
     return angle + delta
+
+
+@dataclass(frozen=True)
+class HornMap:
+    """Servo-horn angle <-> tendon angle, the one map simulation and robot share (``robot.servo.horn_*``).
+
+    tendon = direction (horn - zero), per leg in ``robot.leg.names`` order, every horn angle
+    inside [min_deg, max_deg] (the servo's position limits). A horn below the zero leaves the
+    cable more slack (a negative tendon angle: the servo lets out cable it must wind back in
+    before the tendon pulls again), which is how the robot's own gaits relax a leg.
+    """
+
+    zero_deg: np.ndarray  # (4,)
+    direction: np.ndarray  # (4,) +-1
+    min_deg: np.ndarray  # (4,)
+    max_deg: np.ndarray  # (4,)
+
+    @classmethod
+    def from_config(cls, servo: ServoConfig) -> HornMap:
+        return cls(
+            np.asarray(servo.horn_zero_deg, float),
+            np.asarray(servo.horn_direction, float),
+            np.asarray(servo.horn_min_deg, float),
+            np.asarray(servo.horn_max_deg, float),
+        )
+
+    def tendon_deg(self, horn_deg: np.ndarray) -> np.ndarray:
+        """Tendon angles (..., 4) for horn angles, the horn first held inside its limits."""
+        horn = np.clip(np.asarray(horn_deg, dtype=float), self.min_deg, self.max_deg)
+        return self.direction * (horn - self.zero_deg)
+
+    def horn_deg(self, tendon_deg: np.ndarray) -> np.ndarray:
+        """Horn angles (..., 4) for tendon angles, inside the limits."""
+        return np.clip(self.zero_deg + self.direction * np.asarray(tendon_deg, dtype=float), self.min_deg, self.max_deg)

@@ -1,0 +1,67 @@
+"""``controller=schedule``: play a schedule, the way the physical robot's own gaits are written.
+
+The schedule (``controller.schedule``, one of ``conf/schedule/``) is a cycle of steps,
+each a set of per-leg angles held for ``step_s``; horn angles go through the robot's
+horn map (``robot.servo.horn_*``), the same map ``slot hardware`` writes the servos
+with, so the simulated and the real robot get the same goal positions. It is open
+loop: the MPC runs and is logged (standing reference, every leg in stance), but
+nothing it plans reaches the tendons.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..config import ScheduleConfig, SlotConfig
+from ..gait import contact_plan
+from ..reference import reference
+from ..robot import RobotModel
+from ..soft.servo import HornMap
+from . import CONTROLLERS, ControlStep
+from ._base import MpcController
+
+
+def schedule_tendon_deg(schedule: ScheduleConfig, legs: list[str], horn: HornMap) -> np.ndarray:
+    """The schedule's tendon angles (steps, 4) in ``legs`` order (horn angles through the horn map)."""
+    angles = np.array([[step[leg] for leg in legs] for step in schedule.steps], dtype=float)
+    return horn.tendon_deg(angles) if schedule.units == "horn" else angles
+
+
+def step_index(schedule: ScheduleConfig, t: float) -> int:
+    """Which step of the cycle is held at time ``t`` (s from the start)."""
+    return int(np.floor(t / schedule.step_s + 1e-9)) % len(schedule.steps)
+
+
+@CONTROLLERS.register()
+class ScheduleController(MpcController):
+    def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
+        super().__init__(cfg, robot)
+        self.schedule = cfg.schedules[cfg.controller.schedule]
+        self.tendon = schedule_tendon_deg(
+            self.schedule, list(cfg.robot.leg.names), HornMap.from_config(cfg.robot.servo)
+        )
+        self.standing = replace(cfg.gait, velocity=[0.0, 0.0], yaw_rate=0.0)  # the MPC's reference: stand
+
+    def step(self, t: float, x: np.ndarray, feet: np.ndarray) -> ControlStep:
+        horizon = self.cfg.mpc.horizon
+        stance = np.ones((horizon, 4), dtype=bool)
+        plan = contact_plan(stance, self.standing, self.cfg.mpc.f_min_stance, self.cfg.mpc.f_max)
+        x_ref = reference(x, t, self.standing, self.period, horizon)
+        forces, solution, violations = self.solve(x, x_ref, feet - x[3:6], plan)
+        k = step_index(self.schedule, t)
+        self.steps += 1
+        return ControlStep(
+            forces=forces,
+            tendon_deg=self.tendon[k].copy(),
+            solution=solution,
+            plan=plan,
+            x_ref=x_ref,
+            fallback=not solution.success,
+            violations=violations,
+            telemetry={
+                "schedule_step": float(k),
+                "cycle": float(np.floor(t / (self.schedule.step_s * len(self.tendon)))),
+            },
+        )

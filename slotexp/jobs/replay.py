@@ -1,0 +1,184 @@
+"""Experiment ``replay``: the physical robot's own gaits on the soft plant, beside what they do on the robot.
+
+Each schedule (``experiment.schedules``, from ``conf/schedule/``) is played open loop
+(``controller=schedule``, horn angles through the robot's horn map, no Profile Velocity
+as on the robot) for ``experiment.duration`` and logged to ``logs/<schedule>.mcap``.
+From the logs alone: per gait the distance per cycle, speed, heading in our convention
+(counter-clockwise from forward, the robot starting at zero yaw) and the robot's compass
+(clockwise from forward), yaw rate and heave, each over the whole cycles after
+``experiment.measure_from_s``, beside the robot's heading and distance (``replay.csv``,
+``replay.md``, ``metrics.json``); ``fig_replay.png`` (headings on a compass, distances
+per cycle) and a GIF per gait. A Hydra multirun over model options compares them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..atomic import write_csv, write_text
+from ..config import ConfigError, SlotConfig, check_run_length, check_schedule_ticks, num_field
+from ..runlog import find_logs, load_run
+from . import EXPERIMENTS, Experiment
+from ._logged import git_commit, run_logged
+
+VISIBLE = ["forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"]
+
+
+@dataclass
+class ReplayExperiment:
+    """Play schedules open loop on the soft plant and compare with the robot (results/README.md)."""
+
+    name: str = "replay"
+    schedules: list[str] = field(default_factory=lambda: list(VISIBLE))
+    duration: float = num_field(12.0, lo=0.0, lo_open=True, hi=3600.0, unit="s")
+    measure_from_s: float = num_field(3.0, lo=0.0, unit="s")  # whole cycles from here on are measured
+    # the controller's tick: every step of every schedule must last a whole number of them (0.42 and 0.40 s: 50 Hz)
+    rate_hz: float = num_field(50.0, lo=1.0, hi=1000.0, unit="Hz")
+    # the robot's gait code writes no Profile Velocity: the servos turn as fast as their load lets them
+    profile_velocity_rpm: float = num_field(0.0, lo=0.0, hi=61.0, unit="rpm")
+    gif: bool = True
+
+    def check(self, cfg: SlotConfig) -> None:
+        if cfg.plant.name != "cosserat":
+            raise ConfigError(
+                f"experiment=replay plays tendon schedules on the soft legs: use plant=cosserat, not {cfg.plant.name}"
+            )
+        if not self.schedules:
+            raise ConfigError("experiment.schedules is empty: name at least one schedule (conf/schedule/)")
+        for name in self.schedules:
+            if name not in cfg.schedules:
+                raise ConfigError(
+                    f"experiment.schedules names {name!r}, which is not a schedule: choose from "
+                    f"{', '.join(sorted(cfg.schedules))} (conf/schedule/)"
+                )
+            check_schedule_ticks(cfg, cfg.schedules[name], self.rate_hz, "experiment.rate_hz")
+            cycle = cfg.schedules[name].step_s * len(cfg.schedules[name].steps)
+            if self.duration - self.measure_from_s < cycle:
+                raise ConfigError(
+                    f"experiment.duration - measure_from_s = {self.duration - self.measure_from_s:g} s holds no whole "
+                    f"cycle of {name} ({cycle:g} s): lengthen experiment.duration"
+                )
+        check_run_length(cfg, self.duration)
+
+
+def schedule_config(cfg: SlotConfig, name: str) -> SlotConfig:
+    """``cfg`` set to play schedule ``name`` as the replay does (controller, tick, Profile Velocity)."""
+    exp = cfg.experiment
+    return replace(
+        cfg,
+        controller=replace(cfg.controller, name="schedule", schedule=name),
+        mpc=replace(cfg.mpc, rate_hz=exp.rate_hz),
+        gait=replace(cfg.gait, name=name, velocity=[0.0, 0.0], yaw_rate=0.0),
+        robot=replace(cfg.robot, servo=replace(cfg.robot.servo, profile_velocity_rpm=exp.profile_velocity_rpm)),
+    )
+
+
+def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
+    from rich.console import Console
+    from rich.progress import Progress
+
+    exp = cfg.experiment
+    commit = git_commit()
+    with Progress(console=Console(stderr=True), transient=False) as bar:
+        for name in exp.schedules:
+            task = bar.add_task(f"{name:<15}", total=int(round(exp.duration * exp.rate_hz)))
+            run_logged(
+                schedule_config(cfg, name),
+                cfg.scenarios["baseline"],
+                exp.duration,
+                out_dir / "logs" / f"{name}.mcap",
+                resolved_yaml,
+                commit,
+                lambda done, total, task=task: bar.update(task, completed=done),
+            )
+    report(out_dir, cfg)
+
+
+def wrap_deg(angle: float) -> float:
+    """An angle in (-180, 180]."""
+    return -((-angle + 180.0) % 360.0 - 180.0)
+
+
+def gait_metrics(t: np.ndarray, x: np.ndarray, cycle_s: float, measure_from_s: float) -> dict:
+    """Distance per cycle, speed, headings, yaw rate and heave over the whole cycles after ``measure_from_s``."""
+    first = math.ceil(measure_from_s / cycle_s - 1e-9)
+    last = math.floor((t[-1] - t[0]) / cycle_s + 1e-9)
+    i0 = int(np.argmin(np.abs(t - t[0] - first * cycle_s)))
+    i1 = int(np.argmin(np.abs(t - t[0] - last * cycle_s)))
+    cycles = last - first
+    span = t[i1] - t[i0]
+    d = x[i1, 3:5] - x[i0, 3:5]
+    heading = float(np.degrees(np.arctan2(d[1], d[0])))
+    yaw = np.unwrap(x[:, 2])
+    return {
+        "cycles": int(cycles),
+        "distance_per_cycle_mm": float(np.linalg.norm(d) / cycles * 1e3),
+        "speed_mm_s": float(np.linalg.norm(d) / span * 1e3),
+        "heading_deg": heading,  # ours: counter-clockwise from forward
+        "compass_deg": float((-heading) % 360.0),  # the robot's: clockwise from forward
+        "yaw_rate_deg_s": float(np.degrees(yaw[i1] - yaw[i0]) / span),
+        "heave_mm": float(np.ptp(x[i0 : i1 + 1, 5]) * 1e3),
+        "height_mm": float(np.mean(x[i0 : i1 + 1, 5]) * 1e3),
+    }
+
+
+def report(out_dir: Path, cfg: SlotConfig) -> pd.DataFrame:
+    """The table and figure of a replay, from its logs and the schedules' robot evidence."""
+    exp = cfg.experiment
+    logs = {p.stem: p for p in find_logs(out_dir)}
+    rows = []
+    for name in exp.schedules:
+        if name not in logs:
+            continue
+        schedule = cfg.schedules[name]
+        run = load_run(logs[name])
+        row = {"gait": name, **gait_metrics(run.t, run.x, schedule.step_s * len(schedule.steps), exp.measure_from_s)}
+        row["robot_compass_deg"] = schedule.heading_deg
+        row["robot_distance_per_cycle_mm"] = (
+            schedule.robot_distance_per_cycle_m * 1e3 if schedule.robot_distance_per_cycle_m is not None else math.nan
+        )
+        row["heading_error_deg"] = (
+            wrap_deg(row["compass_deg"] - schedule.heading_deg) if schedule.heading_deg is not None else math.nan
+        )
+        row["distance_ratio"] = row["distance_per_cycle_mm"] / row["robot_distance_per_cycle_mm"]
+        rows.append(row)
+        if exp.gif:
+            from ..figures.animation import animate_log
+
+            animate_log(run.path, out_dir / f"{name}.gif")
+    table = pd.DataFrame(rows)
+    write_csv(table, out_dir / "replay.csv", index=False)
+    write_text(out_dir / "replay.md", replay_markdown(table))
+    finite = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()} for r in rows]
+    write_text(out_dir / "metrics.json", json.dumps({r["gait"]: r for r in finite}, indent=2, allow_nan=False))
+    from ..figures.replay import plot_replay
+
+    plot_replay(table, out_dir / "fig_replay.png")
+    return table
+
+
+def replay_markdown(table: pd.DataFrame) -> str:
+    """The replay beside the robot, one row per gait."""
+    head = (
+        "| gait | robot: compass heading | ours: compass heading (error) | ours: heading, CCW | distance per cycle "
+        "(mm): ours / robot | speed (mm/s) | yaw rate (deg/s) | heave (mm) |\n|---|---|---|---|---|---|---|---|\n"
+    )
+    lines = []
+    for _, r in table.iterrows():
+        robot_d = "—" if math.isnan(r["robot_distance_per_cycle_mm"]) else f"{r['robot_distance_per_cycle_mm']:.0f}"
+        lines.append(
+            f"| {r['gait']} | {r['robot_compass_deg']:.0f}° | {round(r['compass_deg']) % 360}° "
+            f"({r['heading_error_deg']:+.0f}°) "
+            f"| {r['heading_deg']:+.0f}° | {r['distance_per_cycle_mm']:.1f} / {robot_d} | {r['speed_mm_s']:.1f} "
+            f"| {r['yaw_rate_deg_s']:+.2f} | {r['heave_mm']:.1f} |"
+        )
+    return head + "\n".join(lines) + "\n"
+
+
+EXPERIMENTS.add("replay", Experiment(ReplayExperiment, run, report))

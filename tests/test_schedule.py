@@ -1,0 +1,101 @@
+"""The robot's own gaits as schedules: one horn map for the soft plant and the servos, and their replay."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from slotexp.controllers.schedule import schedule_tendon_deg, step_index
+from slotexp.errors import ConfigError
+from slotexp.jobs._logged import run_logged
+from slotexp.jobs.replay import gait_metrics, wrap_deg
+from slotexp.record import read_log
+from slotexp.soft.servo import HornMap
+from tests.helpers import CONF, load, run_on_emulator
+from tests.servo_emulator import OdometryPublisher, ServoEmulator
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "slot_hardware_gaits.yaml"
+OURS = {"FL": "FL", "FR": "FR", "BL": "RL", "BR": "RR"}  # the robot authors' leg names -> ours
+
+
+def test_the_shipped_schedules_are_the_robots_gaits():
+    # Every visible gait of the robot's file is a schedule config with the same numbers (the file's legs
+    # FL FR BL BR are our FL FR RL RR). Without the shared data beside the repository, against our copy alone.
+    cfg = load()
+    source = yaml.safe_load(SHARED.read_text())["gaits"] if SHARED.exists() else None
+    names = set(p.stem for p in (CONF / "schedule").glob("*.yaml"))
+    assert (
+        names
+        == set(cfg.schedules)
+        == {"forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"}
+    )
+    if source is None:
+        pytest.skip("shared/data is not beside this checkout")
+    assert set(source) == names
+    for name, gait in source.items():
+        ours = cfg.schedules[name]
+        assert ours.step_s == gait["step_s"] and ours.heading_deg == gait["heading_deg"] and ours.units == "horn"
+        assert [{OURS[k]: v for k, v in step.items()} for step in gait["steps"]] == ours.steps
+
+
+def test_horn_angles_become_tendon_angles_through_the_one_horn_map():
+    cfg = load("plant=cosserat")
+    horn = HornMap.from_config(cfg.robot.servo)
+    tendon = schedule_tendon_deg(cfg.schedules["forward"], list(cfg.robot.leg.names), horn)
+    # horn 105 ("step height") is 25 deg below the zero, 130: slack; 210 ("standing height") winds 80 deg
+    np.testing.assert_allclose(tendon, [[-25.0, 80.0, 80.0, 80.0], [80.0, 80.0, 80.0, -25.0]])
+    np.testing.assert_allclose(horn.horn_deg(tendon), [[105.0, 210.0, 210.0, 210.0], [210.0, 210.0, 210.0, 105.0]])
+    assert horn.tendon_deg(np.array([90.0, 300.0, 130.0, 130.0]))[0:2].tolist() == [-25.0, 125.0]  # held in limits
+    # a step held 0.42 s: step 1 from 0.42 s to 0.84 s, then the cycle again
+    schedule = cfg.schedules["forward"]
+    assert [step_index(schedule, t) for t in (0.0, 0.41, 0.42, 0.83, 0.84, 1.3)] == [0, 0, 1, 1, 0, 1]
+
+
+def test_a_schedule_whose_steps_miss_the_controller_ticks_is_refused():
+    with pytest.raises(ConfigError, match="step_s = 0.42 s is not a whole number of ticks at mpc.rate_hz = 30"):
+        load("plant=cosserat", "controller=schedule", "mpc.rate_hz=30")
+    with pytest.raises(ConfigError, match="each step needs exactly the legs"):
+        load("schedules.forward.steps=[{FL: 1.0, RL: 2.0, RR: 3.0}]")
+
+
+def test_a_schedule_sends_the_same_goal_ticks_to_the_servos_as_to_the_soft_plant(tmp_path: Path):
+    # The same schedule, played by the soft plant and by `slot hardware` against the servo emulator: the
+    # tendon command at each tick is the schedule's, and the servos receive its horn angles as ticks.
+    overrides = ("controller=schedule", "controller.schedule=crawl_forward")
+    cfg = load("plant=cosserat", *overrides, "experiment=simulate")
+    run_logged(cfg, cfg.scenarios["baseline"], 1.0, tmp_path / "sim.mcap", "{}", "test")
+    sim = read_log(tmp_path / "sim.mcap")["/tendon"]
+    with ServoEmulator() as emu, OdometryPublisher() as pub:
+        result, _ = run_on_emulator(emu, pub, tmp_path / "hw", "duration=1", *overrides)
+    assert result.exit_code == 0, result.message
+    hw = read_log(result.log_path)
+    schedule = cfg.schedules["crawl_forward"]
+    horn = np.array([[step[leg] for leg in cfg.robot.leg.names] for step in schedule.steps])
+    legs = [f"command_deg.{i}" for i in range(4)]
+    for log in (sim, hw["/tendon"]):
+        expected = horn[[step_index(schedule, t) for t in log["t"]]] - 130.0
+        np.testing.assert_allclose(log[legs].to_numpy(float), expected)
+    goals = hw["/servos"][[f"goal.{i}" for i in range(4)]].to_numpy(float)
+    expected_ticks = np.rint(horn[[step_index(schedule, t) for t in hw["/servos"]["t"]]] * 4096 / 360)
+    np.testing.assert_array_equal(goals, expected_ticks)  # 105 and 255 included: the robot's own range
+    assert len(set(map(tuple, goals))) >= 3  # the run went through several steps
+    assert not hw["/servos"][[f"clamped.{i}" for i in range(4)]].to_numpy().any()
+
+
+def test_replay_metrics_measure_whole_cycles_in_both_heading_conventions():
+    # 20 mm per 0.84 s cycle along +y (our heading +90 deg, counter-clockwise; the robot's compass 270: left)
+    t = np.arange(0, 12.0001, 0.02)
+    x = np.zeros((len(t), 12))
+    x[:, 4] = 0.02 * t / 0.84
+    x[:, 2] = np.radians(1.0) * t
+    x[:, 5] = 0.04 + 0.002 * np.sin(2 * np.pi * t / 0.84)
+    m = gait_metrics(t, x, 0.84, 3.0)
+    assert m["cycles"] == int(12 / 0.84) - 4
+    assert m["distance_per_cycle_mm"] == pytest.approx(20.0, rel=1e-9)
+    assert m["heading_deg"] == pytest.approx(90.0) and m["compass_deg"] == pytest.approx(270.0)
+    assert m["yaw_rate_deg_s"] == pytest.approx(1.0, rel=1e-9)
+    assert m["heave_mm"] == pytest.approx(4.0, rel=5e-3)  # the sampled sine misses its peaks by a little
+    assert wrap_deg(350.0 - 0.0) == -10.0 and wrap_deg(-190.0) == 170.0 and wrap_deg(180.0) == 180.0
