@@ -109,6 +109,11 @@ class TorsoConfig:
 
     mass: float = num_field(2.0, lo=0.0, lo_open=True, unit="kg")
     size: list[float] = vec_field([0.1255, 0.0855, 0.034], length=3, lo=0.0, lo_open=True, unit="m")
+    # plant=cosserat: the torso's underside touches the ground (penalty contact and Coulomb friction at the bottom
+    # face's corners, edge midpoints and centre, with robot.contact's stiffness, damping and slip velocity): the
+    # "belly drag" the robot's own gaits use when a relaxed leg lets a corner down
+    ground_contact: bool = False
+    friction: float | None = num_field(None, lo=0.0, unit="")  # the underside's mu on the floor (None: robot.contact's)
 
 
 @dataclass

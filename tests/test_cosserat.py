@@ -311,3 +311,24 @@ def test_a_batch_steps_each_robot_exactly_as_it_steps_alone():
     twin = batch.plants[1]
     twin.step(TendonCommand(commands[1]), 1 / 30)  # a batched robot still steps alone, on its own row
     np.testing.assert_array_equal(batch.stacked["torso"][1], twin.torso)
+
+
+def test_a_torso_on_the_ground_carries_its_weight_there_and_its_friction_stays_in_the_cone():
+    # robot.torso.ground_contact: every tendon 25 deg slack (the robot's horn 105), the legs cannot hold the
+    # body up and it settles onto its underside (bottom face 17 mm below the centre). The ground then carries
+    # the weight through the underside and the legs' nodes near their roots together.
+    cfg, plant = _plant("robot.torso.ground_contact=true", "robot.contact.friction=0.5")
+    for _ in range(60):
+        plant.step(TendonCommand(np.full(4, -25.0)), 1 / 30)
+    weight = _total_mass(plant) * cfg.sim.gravity
+    assert plant.state()[5] == pytest.approx(cfg.robot.torso.size[2] / 2, abs=5e-4)  # resting on its underside
+    assert plant.belly[0] + plant.out[:, 4].sum() == pytest.approx(weight, rel=1e-3)
+    assert plant.belly[0] > 0.3 * weight
+    assert np.linalg.norm(plant.belly[1:3]) < 1e-6 * weight  # at rest, no friction
+    plant.apply_impulse(np.array([0.3, 0.1, 0.0]), np.zeros(3))  # pushed: the underside slides and brakes
+    plant.step(TendonCommand(np.full(4, -25.0)), 0.005)
+    friction = plant.belly[1:3]
+    assert 0.0 < np.linalg.norm(friction) <= 0.5 * plant.belly[0] * (1 + 1e-9)
+    assert friction @ np.array([0.3, 0.1]) < 0.0  # against the slide
+    off = _plant("robot.torso.ground_contact=false")[1]
+    assert off.belly_points.shape == (0, 3)

@@ -33,7 +33,7 @@ from numba import prange
 
 from ..actuation import tendon_angle_deg
 from ..body import advance_quaternion, euler_to_quat, quat_to_euler, quat_to_rot, solve_spd
-from ..config import SlotConfig
+from ..config import SlotConfig, TorsoConfig
 from ..errors import DivergenceError
 from ..jit import njit
 from ..robot import RobotModel
@@ -47,6 +47,15 @@ from . import PLANTS, TendonCommand
 SETTLE_S = 0.4  # s the legs get to settle under the held torso before a run starts
 SETTLE_ITERATIONS = 8  # ... in this many steps towards the servo angle that carries the weight
 LOWERING_MOVES = 25  # per settling step in the first half, in which the torso is lowered onto its initial pose
+
+
+def belly_points(torso: TorsoConfig) -> np.ndarray:
+    """The torso's points that can touch the ground (body frame): its bottom face's corners, edge midpoints
+    and centre with ``robot.torso.ground_contact``, else none."""
+    if not torso.ground_contact:
+        return np.zeros((0, 3))
+    lx, ly, lz = torso.size
+    return np.array([[a * lx / 2, b * ly / 2, -lz / 2] for a in (-1.0, 0.0, 1.0) for b in (-1.0, 0.0, 1.0)])
 
 
 def pose_between(start: np.ndarray, end: np.ndarray, s: float) -> np.ndarray:
@@ -224,6 +233,55 @@ def _velocity_from_momentum(torso, momentum, rot, aug, scratch, rhs, xi):
 
 
 @njit(cache=True)
+def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly):
+    """One of the torso's underside points on the ground: penalty normal force and isotropic Coulomb friction
+    (:func:`coulomb_friction`'s law in the plane of the floor), the friction linearised in the torso's velocity
+    (its slope into ``damp``, h x the 6x6 on (v, w), as the legs' friction across their planes)."""
+    r0 = rot[0, 0] * point[0] + rot[0, 1] * point[1] + rot[0, 2] * point[2]
+    r1 = rot[1, 0] * point[0] + rot[1, 1] * point[1] + rot[1, 2] * point[2]
+    r2 = rot[2, 0] * point[0] + rot[2, 1] * point[1] + rot[2, 2] * point[2]
+    depth = -(pz + r2)
+    if depth <= 0.0:
+        return
+    w0, w1, w2 = xi[3], xi[4], xi[5]
+    vx = xi[0] + w1 * r2 - w2 * r1
+    vy = xi[1] + w2 * r0 - w0 * r2
+    vz = xi[2] + w0 * r1 - w1 * r0
+    nrm = par[0] * depth - par[1] * vz
+    if nrm <= 0.0:
+        return
+    mu, v_eps = par[2], par[3]
+    fx, fy = coulomb_friction(vx, vy, nrm, mu, v_eps)
+    speed = np.sqrt(vx * vx + vy * vy)
+    # slope of the friction in the floor's plane: mu N / v_eps sticking; sliding, mu N / |v| across the slip
+    if speed < v_eps:
+        cxx = cyy = mu * nrm / v_eps
+        cxy = 0.0
+    else:
+        scale = mu * nrm / (speed * speed * speed)
+        cxx = scale * vy * vy
+        cyy = scale * vx * vx
+        cxy = -scale * vx * vy
+    # the point's horizontal velocity is J (v, w): rows jx = (1, 0, 0, 0, r2, -r1), jy = (0, 1, 0, -r2, 0, r0)
+    gx = fx + cxx * vx + cxy * vy  # F0 + C v, so that load - C xi_new is the friction at the new velocity
+    gy = fy + cxy * vx + cyy * vy
+    load[0] += gx
+    load[1] += gy
+    load[2] += nrm
+    load[3] += r1 * nrm - r2 * gy
+    load[4] += r2 * gx - r0 * nrm
+    load[5] += r0 * gy - r1 * gx
+    jx = (1.0, 0.0, 0.0, 0.0, r2, -r1)
+    jy = (0.0, 1.0, 0.0, -r2, 0.0, r0)
+    for a in range(6):
+        for b in range(a, 6):
+            damp[a, b] += h * (cxx * jx[a] * jx[b] + cxy * (jx[a] * jy[b] + jy[a] * jx[b]) + cyy * jy[a] * jy[b])
+    belly[0] += nrm
+    belly[1] += fx
+    belly[2] += fy
+
+
+@njit(cache=True)
 def coupled_steps(
     torso,
     momentum,
@@ -275,6 +333,9 @@ def coupled_steps(
     jvec,
     jmeta,
     reaction,
+    belly_points,
+    belly_par,
+    belly,
     hold_torso,
 ):
     """Advance torso and four legs ``n_steps`` steps of ``h``.
@@ -294,7 +355,10 @@ def coupled_steps(
 
     ``eta`` (4, N) is each node's offset across its leg's plane (:func:`_sync_legs`).
     ``reaction`` (4, 6) receives each leg's force and moment on the torso (world) at the last
-    step, its friction across the plane included. With ``hold_torso`` the torso stays where it
+    step, its friction across the plane included. ``belly_points`` (P, 3) are the torso's points that
+    touch the ground (body frame; none: no torso contact), ``belly_par`` their (stiffness, damping, mu,
+    v_eps), and ``belly`` (3,) receives their normal and friction force (x, y) at the last step.
+    With ``hold_torso`` the torso stays where it
     is, at rest (the legs settle under it). Returns the number of steps done (< n_steps on divergence).
     """
     n_legs = pos.shape[0]
@@ -493,6 +557,9 @@ def coupled_steps(
             reaction[i, 5] = 0.0
         if hold_torso:
             continue
+        belly[:] = 0.0
+        for j in range(belly_points.shape[0]):
+            _belly_contact(belly_points[j], rot, torso[2], xi, belly_par, h, load, damp, belly)
         # momentum about the torso centre, plus the step's impulse; the friction's slope implicit:
         # (A + h C) xi_new = A xi + h (load - C xi)... written with load holding F0 + C xi
         for a in range(6):
@@ -591,6 +658,9 @@ def batch_steps(
     jvec,
     jmeta,
     reaction,
+    belly_points,
+    belly_par,
+    belly,
     done,
 ):
     """:func:`coupled_steps` for B robots of one model at once, one thread per robot: every per-robot
@@ -647,6 +717,9 @@ def batch_steps(
             jvec[b],
             jmeta[b],
             reaction[b],
+            belly_points,
+            belly_par,
+            belly[b],
             False,
         )
 
@@ -712,6 +785,11 @@ class CosseratPlant:
                 sc.profile_velocity_rpm * RPM_TO_RAD_S,
             ]
         )
+        self.belly_points = belly_points(cfg.robot.torso)
+        contact = cfg.robot.contact
+        mu_belly = contact.friction if cfg.robot.torso.friction is None else cfg.robot.torso.friction
+        self.belly_par = np.array([contact.stiffness, contact.damping, mu_belly, contact.slip_velocity])
+        self.belly = np.zeros(3)  # the torso's underside on the ground: normal force, friction x, y
         self.normal = np.zeros((4, n))
         self.out = np.zeros((4, len(OUT)))
         self.reaction = np.zeros((4, 6))
@@ -794,6 +872,7 @@ class CosseratPlant:
                 "friction_n": np.hypot(self.out[:, O_F], self.out[:, O_FL]),
             },
             "/legs/root": {"force_n": self.reaction[:, 0:3].copy(), "moment_nm": self.reaction[:, 3:6].copy()},
+            "/torso/contact": {"normal_n": float(self.belly[0]), "friction_n": self.belly[1:3].copy()},
         }
 
     def _settle_legs(self, seconds: float) -> None:
@@ -963,6 +1042,9 @@ class CosseratPlant:
             own["out"],
             *work,
             own["reaction"],
+            self.belly_points,
+            self.belly_par,
+            own["belly"],
         )
 
     def _advanced(self, done: int, n: int, h: float, what: str, loads: str) -> None:
@@ -1011,6 +1093,7 @@ _OWN = (
     "normal",
     "out",
     "reaction",
+    "belly",
 )
 
 
