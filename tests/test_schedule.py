@@ -59,6 +59,10 @@ def test_a_schedule_whose_steps_miss_the_controller_ticks_is_refused():
         load("plant=cosserat", "controller=schedule", "mpc.rate_hz=30")
     with pytest.raises(ConfigError, match="each step needs exactly the legs"):
         load("schedules.forward.steps=[{FL: 1.0, RL: 2.0, RR: 3.0}]")
+    with pytest.raises(ConfigError, match="holds no whole cycle of forward .* give experiment.duration >= 4.2"):
+        load("plant=cosserat", "experiment=replay", "experiment.duration=4")
+    with pytest.raises(ConfigError, match="use plant=cosserat"):
+        load("experiment=replay")
 
 
 def test_a_schedule_sends_the_same_goal_ticks_to_the_servos_as_to_the_soft_plant(tmp_path: Path):

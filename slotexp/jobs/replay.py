@@ -59,10 +59,12 @@ class ReplayExperiment:
                 )
             check_schedule_ticks(cfg, cfg.schedules[name], self.rate_hz, "experiment.rate_hz")
             cycle = cfg.schedules[name].step_s * len(cfg.schedules[name].steps)
-            if self.duration - self.measure_from_s < cycle:
+            first = math.ceil(self.measure_from_s / cycle - 1e-9) * cycle  # cycles are measured from here
+            if first + cycle > self.duration + 1e-9:
                 raise ConfigError(
-                    f"experiment.duration - measure_from_s = {self.duration - self.measure_from_s:g} s holds no whole "
-                    f"cycle of {name} ({cycle:g} s): lengthen experiment.duration"
+                    f"experiment.duration = {self.duration:g} s holds no whole cycle of {name} ({cycle:g} s) after "
+                    f"experiment.measure_from_s = {self.measure_from_s:g} s: give experiment.duration >= "
+                    f"{first + cycle:g}"
                 )
         check_run_length(cfg, self.duration)
 
