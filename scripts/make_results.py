@@ -241,7 +241,6 @@ RUNS = {
 }
 
 
-
 def mean_walk_command() -> list[str]:
     """The fairer open-loop baseline: the gait at the closed-loop walk's own mean velocity command (after 2 s),
     read from that run's log (results/README.md, "The controller does the work")."""
