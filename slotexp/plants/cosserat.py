@@ -912,7 +912,7 @@ class CosseratPlant:
         robot moves with it as one rigid body (each leg's nodes and elements get the rigid motion of its
         root frame on top of what they had), and the momentum state is the one of that motion."""
         rot = quat_to_rot(self.torso[3:7])
-        corners, u = self._plane()
+        _, u = self._plane()
         p = self.torso[0:3]
         for i in range(4):
             axis = np.cross(u[i], [0.0, 0.0, 1.0])  # the in-plane angle's axis
