@@ -349,10 +349,11 @@ def _hydra_task(cfg) -> None:
 def run(ctx: typer.Context) -> None:
     """Run an experiment. Arguments are Hydra overrides, e.g. experiment=perturb gait=walk solver=scs.
 
-    Groups: experiment (perturb, simulate, validate, leg, calibrate), gait (walk,
+    Groups: experiment (perturb, simulate, validate, leg, calibrate, replay), gait (walk,
     crawl, omni60), solver, plant (ideal, cosserat), actuation (paper, calibrated),
-    robot (slot), and the scenarios under scenarios.<name> (baseline, roll, pitch,
-    height, velocity, combined, noise).
+    robot (slot), the scenarios under scenarios.<name> (baseline, roll, pitch,
+    height, velocity, combined, noise), and the robot's own gaits under
+    schedules.<name> (forward, crawl_forward, ...; controller=schedule plays one).
     Use -m for a multirun sweep (a,b,c values), --cfg job to print the composed
     config, hydra.run.dir=DIR to choose the output directory, live=true to stream the
     run to Foxglove as well (ws://127.0.0.1:8765; live_port=N to change it).
