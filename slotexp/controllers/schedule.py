@@ -14,24 +14,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..config import ScheduleConfig, SlotConfig
+from ..config import SlotConfig
 from ..gait import contact_plan
+from ..locomotion.schedules import schedule_tendon_deg, step_index
 from ..reference import reference
 from ..robot import RobotModel
 from ..soft.servo import HornMap
 from . import CONTROLLERS, ControlStep
 from ._base import MpcController
-
-
-def schedule_tendon_deg(schedule: ScheduleConfig, legs: list[str], horn: HornMap) -> np.ndarray:
-    """The schedule's tendon angles (steps, 4) in ``legs`` order (horn angles through the horn map)."""
-    angles = np.array([[step[leg] for leg in legs] for step in schedule.steps], dtype=float)
-    return horn.tendon_deg(angles) if schedule.units == "horn" else angles
-
-
-def step_index(schedule: ScheduleConfig, t: float) -> int:
-    """Which step of the cycle is held at time ``t`` (s from the start)."""
-    return int(np.floor(t / schedule.step_s + 1e-9)) % len(schedule.steps)
 
 
 @CONTROLLERS.register()

@@ -18,11 +18,11 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from ..atomic import write_csv, write_text
 from ..config import ConfigError, SlotConfig, check_run_length, check_schedule_ticks, num_field
+from ..locomotion.schedules import cycle_s, gait_metrics, with_profile_velocity, wrap_deg
 from ..runlog import find_logs, load_run
 from . import EXPERIMENTS, Experiment
 from ._logged import git_commit, run_logged
@@ -73,11 +73,10 @@ def schedule_config(cfg: SlotConfig, name: str) -> SlotConfig:
     """``cfg`` set to play schedule ``name`` as the replay does (controller, tick, Profile Velocity)."""
     exp = cfg.experiment
     return replace(
-        cfg,
+        with_profile_velocity(cfg, exp.profile_velocity_rpm),
         controller=replace(cfg.controller, name="schedule", schedule=name),
         mpc=replace(cfg.mpc, rate_hz=exp.rate_hz),
         gait=replace(cfg.gait, name=name, velocity=[0.0, 0.0], yaw_rate=0.0),
-        robot=replace(cfg.robot, servo=replace(cfg.robot.servo, profile_velocity_rpm=exp.profile_velocity_rpm)),
     )
 
 
@@ -102,34 +101,6 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
     report(out_dir, cfg)
 
 
-def wrap_deg(angle: float) -> float:
-    """An angle in (-180, 180]."""
-    return -((-angle + 180.0) % 360.0 - 180.0)
-
-
-def gait_metrics(t: np.ndarray, x: np.ndarray, cycle_s: float, measure_from_s: float) -> dict:
-    """Distance per cycle, speed, headings, yaw rate and heave over the whole cycles after ``measure_from_s``."""
-    first = math.ceil(measure_from_s / cycle_s - 1e-9)
-    last = math.floor((t[-1] - t[0]) / cycle_s + 1e-9)
-    i0 = int(np.argmin(np.abs(t - t[0] - first * cycle_s)))
-    i1 = int(np.argmin(np.abs(t - t[0] - last * cycle_s)))
-    cycles = last - first
-    span = t[i1] - t[i0]
-    d = x[i1, 3:5] - x[i0, 3:5]
-    heading = float(np.degrees(np.arctan2(d[1], d[0])))
-    yaw = np.unwrap(x[:, 2])
-    return {
-        "cycles": int(cycles),
-        "distance_per_cycle_mm": float(np.linalg.norm(d) / cycles * 1e3),
-        "speed_mm_s": float(np.linalg.norm(d) / span * 1e3),
-        "heading_deg": heading,  # ours: counter-clockwise from forward
-        "compass_deg": float((-heading) % 360.0),  # the robot's: clockwise from forward
-        "yaw_rate_deg_s": float(np.degrees(yaw[i1] - yaw[i0]) / span),
-        "heave_mm": float(np.ptp(x[i0 : i1 + 1, 5]) * 1e3),
-        "height_mm": float(np.mean(x[i0 : i1 + 1, 5]) * 1e3),
-    }
-
-
 def report(out_dir: Path, cfg: SlotConfig) -> pd.DataFrame:
     """The table and figure of a replay, from its logs and the schedules' robot evidence."""
     exp = cfg.experiment
@@ -140,7 +111,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> pd.DataFrame:
             continue
         schedule = cfg.schedules[name]
         run = load_run(logs[name])
-        row = {"gait": name, **gait_metrics(run.t, run.x, schedule.step_s * len(schedule.steps), exp.measure_from_s)}
+        row = {"gait": name, **gait_metrics(run.t, run.x, cycle_s(schedule), exp.measure_from_s)}
         row["robot_compass_deg"] = schedule.heading_deg
         row["robot_distance_per_cycle_mm"] = (
             schedule.robot_distance_per_cycle_m * 1e3 if schedule.robot_distance_per_cycle_m is not None else math.nan

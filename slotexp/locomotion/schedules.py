@@ -1,0 +1,99 @@
+"""Step schedules, the physical robot's own way of writing gaits, played on the soft plant.
+
+A schedule (:class:`slotexp.config.ScheduleConfig`, ``conf/schedule/``) is a cycle of steps,
+each a set of per-leg angles held for ``step_s``. :func:`play` runs several schedules open
+loop as one :class:`slotexp.plants.cosserat.CosseratBatch` (one robot per schedule, one
+thread each), with the arithmetic of a closed-loop ``controller=schedule`` run, and
+:func:`gait_metrics` measures a run the way the robot's evidence is stated: distance per
+cycle and heading. ``experiment=replay`` and ``experiment=identify`` both use them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..config import ScheduleConfig, SlotConfig
+from ..plants import nominal_state
+from ..plants.cosserat import CosseratBatch, CosseratPlant
+from ..robot import build_robot
+from ..soft.servo import HornMap
+
+
+def schedule_tendon_deg(schedule: ScheduleConfig, legs: list[str], horn: HornMap) -> np.ndarray:
+    """The schedule's tendon angles (steps, 4) in ``legs`` order (horn angles through the horn map)."""
+    angles = np.array([[step[leg] for leg in legs] for step in schedule.steps], dtype=float)
+    return horn.tendon_deg(angles) if schedule.units == "horn" else angles
+
+
+def step_index(schedule: ScheduleConfig, t: float) -> int:
+    """Which step of the cycle is held at time ``t`` (s from the start)."""
+    return int(np.floor(t / schedule.step_s + 1e-9)) % len(schedule.steps)
+
+
+def cycle_s(schedule: ScheduleConfig) -> float:
+    return schedule.step_s * len(schedule.steps)
+
+
+def with_profile_velocity(cfg: SlotConfig, rpm: float) -> SlotConfig:
+    """``cfg`` with the servos' Profile Velocity set as a schedule is played (the robot's gait code: none)."""
+    return replace(cfg, robot=replace(cfg.robot, servo=replace(cfg.robot.servo, profile_velocity_rpm=rpm)))
+
+
+def play(cfg: SlotConfig, names: list[str], duration: float, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Play schedules ``names`` open loop for ``duration`` s, tendon goals sampled at ``rate_hz``.
+
+    Returns the times (n + 1,) and each robot's state (len(names), n + 1, 12), sampled every
+    tick. The robots start standing, as a closed-loop run does, and follow the same steps.
+    """
+    robot = build_robot(cfg.robot)
+    legs = list(cfg.robot.leg.names)
+    horn = HornMap.from_config(cfg.robot.servo)
+    plants = [CosseratPlant.from_config(cfg, robot, nominal_state(robot)) for _ in names]
+    batch = CosseratBatch(plants)
+    schedules = [cfg.schedules[name] for name in names]
+    tendons = [schedule_tendon_deg(s, legs, horn) for s in schedules]
+    period = 1.0 / rate_hz
+    n = int(round(duration * rate_hz))
+    xs = np.empty((len(names), n + 1, 12))
+    xs[:, 0] = [p.state() for p in plants]
+    for k in range(n):
+        t = k * period
+        batch.step(np.stack([td[step_index(s, t)] for s, td in zip(schedules, tendons, strict=True)]), period)
+        xs[:, k + 1] = [p.state() for p in plants]
+    return np.arange(n + 1) * period, xs
+
+
+def gait_metrics(t: np.ndarray, x: np.ndarray, cycle: float, measure_from_s: float) -> dict:
+    """Distance per cycle, speed, headings, yaw rate and heave over the whole cycles after ``measure_from_s``.
+
+    ``x`` is the state (n, 12) at times ``t``; headings are of the displacement over those
+    cycles, in our convention (counter-clockwise from forward) and the robot's compass
+    (clockwise from forward), the robot starting at zero yaw.
+    """
+    first = math.ceil(measure_from_s / cycle - 1e-9)
+    last = math.floor((t[-1] - t[0]) / cycle + 1e-9)
+    i0 = int(np.argmin(np.abs(t - t[0] - first * cycle)))
+    i1 = int(np.argmin(np.abs(t - t[0] - last * cycle)))
+    cycles = last - first
+    span = t[i1] - t[i0]
+    d = x[i1, 3:5] - x[i0, 3:5]
+    heading = float(np.degrees(np.arctan2(d[1], d[0])))
+    yaw = np.unwrap(x[:, 2])
+    return {
+        "cycles": int(cycles),
+        "distance_per_cycle_mm": float(np.linalg.norm(d) / cycles * 1e3),
+        "speed_mm_s": float(np.linalg.norm(d) / span * 1e3),
+        "heading_deg": heading,  # ours: counter-clockwise from forward
+        "compass_deg": float((-heading) % 360.0),  # the robot's: clockwise from forward
+        "yaw_rate_deg_s": float(np.degrees(yaw[i1] - yaw[i0]) / span),
+        "heave_mm": float(np.ptp(x[i0 : i1 + 1, 5]) * 1e3),
+        "height_mm": float(np.mean(x[i0 : i1 + 1, 5]) * 1e3),
+    }
+
+
+def wrap_deg(angle: float) -> float:
+    """An angle in (-180, 180]."""
+    return -((-angle + 180.0) % 360.0 - 180.0)
