@@ -126,7 +126,7 @@ def test_gait_search_sweeps_headings_as_a_hydra_multirun(tmp_path):
             "experiment.duration=1",
             "experiment.settle=0.5",
             "experiment.verify_duration=1",
-            "experiment.n_jobs=1",
+            "experiment.parallel.workers=1",
             f"hydra.sweep.dir={sweep}",
             cwd=tmp_path,
             timeout=600,

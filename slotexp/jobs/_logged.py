@@ -20,6 +20,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from .. import __version__
 from ..config import ScenarioConfig, SlotConfig
+from ..parallel import n_workers
 from ..record import Recorder
 from ..simulation import STOP_SIGNALS, Interrupted, RunSummary, Tee, run_closed_loop
 
@@ -165,11 +166,6 @@ def _stop_workers(pool: ProcessPoolExecutor, signum: int) -> None:
         with contextlib.suppress(OSError):
             os.kill(process.pid, signum)
     pool.shutdown(wait=True, cancel_futures=True)
-
-
-def n_workers(requested: int, n_tasks: int) -> int:
-    cores = os.cpu_count() or 1
-    return max(1, min(n_tasks, requested if requested > 0 else cores))
 
 
 def run_many(

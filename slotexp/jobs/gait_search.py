@@ -4,7 +4,8 @@ For each body-frame heading in ``experiment.headings`` (and turning in place wit
 ``experiment.turn``) it searches a primitive of the style ``experiment.style``
 (:mod:`slotexp.locomotion.search`), every candidate simulated on the two-way coupled
 soft plant at ``sim.dt`` (:mod:`slotexp.locomotion.openloop`), candidates evaluated
-in parallel processes (``experiment.n_jobs``, every core by default), seeded. The
+in parallel through :func:`slotexp.parallel.pool` (``experiment.parallel``: local
+processes on every core by default, or a Dask cluster), seeded. The
 best primitive of each heading and its mirror images (the torso is symmetric about
 its x and y axes) are then run again for ``experiment.verify_duration`` seconds and
 what they measured (heading, speed, yaw rate) goes into the library.
@@ -20,8 +21,6 @@ and the figures ``fig_gait_polar.png`` (best speed per heading) and
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,9 +34,10 @@ from ..errors import ConfigError
 from ..locomotion.openloop import GaitMetrics, run_gait
 from ..locomotion.primitives import GaitStyle, Primitive
 from ..locomotion.search import cost, from_vector, search, to_vector
+from ..parallel import ParallelConfig, pool
 from ..record import Recorder, read_log
 from . import EXPERIMENTS, Experiment
-from ._logged import git_commit, n_workers
+from ._logged import git_commit
 
 TURN = "turn"
 
@@ -62,8 +62,8 @@ class GaitSearchExperiment:
     verify_duration: float = num_field(8.0, lo=0.5, hi=600.0, unit="s")  # the library's measurements
     # a translating gait slower than this when verified stays out of the library (a failed heading)
     min_speed: float = num_field(5.0, lo=0.0, unit="mm/s")
-    n_jobs: int = num_field(0, lo=0, unit="processes")  # 0 = one per core
     seed: int = num_field(1, lo=0, unit="")
+    parallel: ParallelConfig = field(default_factory=ParallelConfig)
 
     def check(self, cfg: SlotConfig) -> None:
         if cfg.plant.name != "cosserat":
@@ -86,23 +86,16 @@ class GaitSearchExperiment:
                 f"experiment.settle = {self.settle:g} s leaves nothing of experiment.duration = "
                 f"{self.duration:g} s to measure: lower it"
             )
+        self.parallel.check()
 
 
-# --------------------------------------------------------------------------- evaluation in worker processes
-_WORKER: dict = {}
-
-
-def _init_worker(cfg: SlotConfig, style: GaitStyle) -> None:
-    _WORKER.update(cfg=cfg, style=style)
-
-
-def _evaluate(task: tuple[Primitive, float, float]) -> dict:
+# --------------------------------------------------------------------------- evaluation (in workers)
+def _evaluate(task: tuple[SlotConfig, GaitStyle, Primitive, float, float]) -> dict:
     """Run one primitive open loop. It is passed whole, not as the search's vector: the vector keeps the legs'
     phases relative to the first leg's, and a schedule shifted in time is sampled at other 30 Hz ticks, so on
     the plant it is another gait (measured: the forward gait's front/back mirror image walks 31.7 mm/s as it
     stands and 15.7 mm/s shifted by 0.11 cycle to put its first leg's phase at zero)."""
-    prim, duration, settle = task
-    cfg, style = _WORKER["cfg"], _WORKER["style"]
+    cfg, style, prim, duration, settle = task
     top = cfg.robot.leg.tendon_max_deg
     try:
         return run_gait(
@@ -110,23 +103,6 @@ def _evaluate(task: tuple[Primitive, float, float]) -> dict:
         ).as_dict()
     except Exception as exc:  # a candidate that diverges is a bad candidate, not a failed search
         return {"error": f"{type(exc).__name__}: {exc}"}
-
-
-class _InProcess:
-    """The pool's ``map`` in this process: one worker needs no pool, and a Hydra joblib (loky)
-    job cannot start one (its children cannot find the 'loky' start method)."""
-
-    def __init__(self, cfg: SlotConfig, style: GaitStyle) -> None:
-        _init_worker(cfg, style)
-
-    def map(self, fn, tasks):
-        return map(fn, tasks)
-
-    def __enter__(self) -> _InProcess:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        return None
 
 
 def _style_of(cfg: SlotConfig, name: str) -> GaitStyle:
@@ -210,16 +186,10 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
     targets: list[float | str] = [float(h) for h in exp.headings] + ([TURN] if exp.turn else [])
     (out_dir / "logs").mkdir(parents=True, exist_ok=True)
     meta = {"config": {"yaml": resolved_yaml}, "run": {"experiment": "gait_search", "git_commit": git_commit()}}
-    workers = n_workers(exp.n_jobs, exp.popsize)
-    ctx = mp.get_context("spawn")  # numba state is not fork-safe
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
     with (
         Recorder(out_dir / "logs" / "gait_search.mcap", metadata=meta) as rec,
-        (
-            _InProcess(cfg, style)
-            if workers == 1
-            else ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(cfg, style))
-        ) as pool,
+        pool(exp.parallel, exp.popsize) as engine,
         Progress(*columns, console=Console(stderr=True), transient=False) as bar,
     ):
         written = 0  # candidates logged so far: the log's clock
@@ -233,8 +203,8 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
             def evaluate(xs: list[np.ndarray], target: float | str = target, task=task) -> list[float]:
                 nonlocal written, generation
                 costs = []
-                tasks = [(from_vector(x, top), exp.duration, exp.settle) for x in xs]
-                for x, r in zip(xs, pool.map(_evaluate, tasks), strict=True):
+                tasks = [(cfg, style, from_vector(x, top), exp.duration, exp.settle) for x in xs]
+                for x, r in zip(xs, engine.map(_evaluate, tasks), strict=True):
                     costs.append(_cost(r, target))
                     written += 1
                     rec.write(
@@ -267,7 +237,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
             )
             current = [p for p in current if not _near(p, target)] + [found]  # the next target starts from it
             images = _mirrors(prim, target)
-            checks = list(pool.map(_evaluate, [(p, exp.verify_duration, exp.settle) for p in images]))
+            checks = engine.map(_evaluate, [(cfg, style, p, exp.verify_duration, exp.settle) for p in images])
             for image, check in zip(images, checks, strict=True):
                 rec.write(
                     "/search/verified",

@@ -78,11 +78,13 @@ def search(
     max_evals: int,
     seed: int,
     fixed_phases: np.ndarray | None = None,
+    bounds: tuple[np.ndarray, np.ndarray] = (LOWER, UPPER),
     on_generation: Callable[[int, list[np.ndarray], list[float]], None] | None = None,
 ) -> tuple[float, np.ndarray]:
     """CMA-ES from ``x0``: ``evaluate`` maps a generation's vectors to their costs (in parallel, if it likes).
 
     With ``fixed_phases`` the phases stay as given (only bases and amplitudes move).
+    ``bounds`` (lower, upper) default to a gait vector's; any other search passes its own.
     The start is evaluated first (one more evaluation than ``max_evals``). Returns the
     best cost seen and its vector; ``on_generation(generation, xs, costs)`` sees every
     generation (logging, progress).
@@ -92,7 +94,13 @@ def search(
     es = cma.CMAEvolutionStrategy(
         np.asarray(x0, float),
         sigma0,
-        {"seed": seed, "popsize": popsize, "bounds": [list(LOWER), list(UPPER)], "maxfevals": max_evals, "verbose": -9},
+        {
+            "seed": seed,
+            "popsize": popsize,
+            "bounds": [list(bounds[0]), list(bounds[1])],
+            "maxfevals": max_evals,
+            "verbose": -9,
+        },
     )
     x0 = np.asarray(x0, float)
     best = (float(list(evaluate([x0]))[0]), x0)  # the start is a candidate too: the search never returns worse

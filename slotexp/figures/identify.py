@@ -1,0 +1,50 @@
+"""Figure of an identification: the search's cost, each parameter's path to its fit, and the fit's residuals."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .style import new_figure, save
+
+
+def plot_identify(
+    candidates: pd.DataFrame, parameters: list[str], spread: pd.DataFrame, residuals: pd.DataFrame, path: str | Path
+) -> Path:
+    """Top left: cost per candidate (log) and the running best. Top right: each parameter's value per candidate,
+    the fit and its 68 % Delta-chi^2 range (the truth, dashed, on synthetic data). Bottom: residual per
+    observation of the fit, in sigmas."""
+    fig = new_figure(11.0, 7.5)
+    grid = fig.add_gridspec(2, 1 + len(parameters))
+    cost = fig.add_subplot(grid[0, 0])
+    c = candidates["cost"].to_numpy(float)
+    n = np.arange(1, len(c) + 1)
+    cost.semilogy(n, c, ".", color="0.6", ms=3, label="candidate")
+    cost.semilogy(n, np.minimum.accumulate(c), color="#1f77b4", label="best so far")
+    cost.set_xlabel("candidate")
+    cost.set_ylabel("cost (sum of squared residuals)")
+    cost.legend(fontsize=7)
+    for i, name in enumerate(parameters):
+        ax = fig.add_subplot(grid[0, 1 + i])
+        row = spread.iloc[i]
+        ax.plot(n, candidates[name].to_numpy(float), ".", color="0.6", ms=3)
+        ax.axhspan(row["lo_68"], row["hi_68"], color="#1f77b4", alpha=0.2, label="68 % region")
+        ax.axhline(row["best"], color="#1f77b4", label=f"fit {row['best']:.4g}")
+        if "truth" in spread and np.isfinite(row["truth"]):
+            ax.axhline(row["truth"], color="k", ls="--", lw=1, label=f"truth {row['truth']:.4g}")
+        ax.set_ylim(row["range_lo"], row["range_hi"])
+        ax.set_xlabel("candidate")
+        ax.set_title(name, fontsize=8)
+        ax.legend(fontsize=7)
+    bars = fig.add_subplot(grid[1, :])
+    labels = [f"{r['gait']}: {r['observation']}" for _, r in residuals.iterrows()]
+    values = residuals["residual"].to_numpy(float)
+    bars.bar(np.arange(len(values)), values, color=np.where(np.abs(values) > 2, "#d62728", "#1f77b4"))
+    bars.axhline(0.0, color="k", lw=0.8)
+    for s in (-2, 2):
+        bars.axhline(s, color="0.5", lw=0.8, ls=":")
+    bars.set_xticks(np.arange(len(values)), labels, rotation=60, ha="right", fontsize=6)
+    bars.set_ylabel("residual of the fit [sigma]")
+    return save(fig, path)

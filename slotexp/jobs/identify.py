@@ -1,0 +1,566 @@
+"""Experiment ``identify``: fit uncertain model parameters to what the robot did with its own gaits.
+
+The paper's stated next step. Chosen numeric settings (``experiment.parameters``: a
+config path and a range each, e.g. the floor's friction, the horn zero, E, damping)
+are fitted by CMA-ES (``cma``, seeded, the start evaluated first) so that the soft
+plant, playing the schedules ``experiment.schedules`` open loop
+(:func:`slotexp.locomotion.schedules.play`, one :class:`CosseratBatch` per candidate),
+matches the observations:
+
+- a table of per-gait displacements (``experiment.observations``: ``robot``, the
+  schedules' own evidence in ``conf/schedule/`` (the robot's compass heading, distance
+  per cycle where given), or a CSV ``gait,compass_deg,distance_per_cycle_mm`` with
+  blanks where a gait has no figure);
+- marker tracks (``experiment.tracks``: gait -> a marker CSV or ``.mcap`` in the formats
+  of ``experiment=validate``): the ``com`` marker's displacement from its first sample.
+
+Each observation's residual is (model - observed) / sigma, and the cost is their sum of
+squares. With ``experiment.synthetic.truth`` the observations are made by the model
+itself at known values, with Gaussian noise, and written as files (``synthetic/``) that
+go through the same loaders: the check that the fit recovers what it should.
+
+Candidates run through :func:`slotexp.parallel.pool` (``experiment.parallel``: local
+processes, every core, by default; a Dask cluster as a setting). Writes ``fit.yaml``
+(the best values, as overrides), ``residuals.csv``, ``candidates.csv``, ``spread.csv``
+(the range of each parameter over the candidates within the 68 % Delta-chi^2 of the best),
+``metrics.json`` and ``fig_identify.png``, all rebuilt by ``slot figures`` from
+``logs/identify.mcap``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from ..atomic import write_csv, write_text
+from ..config import SlotConfig, check_schedule_ticks, num_field
+from ..errors import ConfigError, UserError
+from ..locomotion.schedules import cycle_s, gait_metrics, play, with_profile_velocity, wrap_deg
+from ..parallel import ParallelConfig, pool
+from ..record import Log, Recorder, read_log
+from . import EXPERIMENTS, Experiment
+from ._logged import git_commit
+from .replay import VISIBLE
+
+COM = "com"
+AXES = ("x", "y", "z")
+
+
+@dataclass
+class ParameterSpec:
+    """One fitted setting: a numeric config path (a list setting gets the value in every entry) and its range."""
+
+    path: str = "robot.contact.friction"
+    lo: float = 0.05
+    hi: float = 1.0
+    log: bool = False  # search the logarithm (a scale: friction, stiffness, damping)
+
+
+@dataclass
+class SyntheticConfig:
+    """Observations made by the model at known values (``truth``, one per parameter), with noise."""
+
+    truth: list[float] | None = None
+    noise_mm: float = num_field(0.5, lo=0.0, unit="mm")  # on distances per cycle and every track sample
+    noise_deg: float = num_field(2.0, lo=0.0, unit="deg")  # on headings
+    seed: int = num_field(0, lo=0, unit="")
+
+
+def _default_parameters() -> list[ParameterSpec]:
+    return [
+        ParameterSpec("robot.contact.friction", 0.05, 1.0, True),
+        ParameterSpec("robot.servo.horn_zero_deg", 80.0, 140.0, False),
+    ]
+
+
+@dataclass
+class IdentifyExperiment:
+    """Fit model parameters to per-gait displacements and marker tracks (CMA-ES over the batched plant)."""
+
+    name: str = "identify"
+    schedules: list[str] = field(default_factory=lambda: list(VISIBLE))
+    observations: str = "robot"  # robot: the schedules' evidence (conf/schedule/); or a CSV path
+    tracks: dict[str, str] = field(default_factory=dict)  # gait -> marker CSV / .mcap (validate's formats)
+    parameters: list[ParameterSpec] = field(default_factory=_default_parameters)
+    duration: float = num_field(8.0, lo=0.0, lo_open=True, hi=600.0, unit="s")  # simulated per gait
+    measure_from_s: float = num_field(2.0, lo=0.0, unit="s")  # displacements: whole cycles from here
+    rate_hz: float = num_field(50.0, lo=1.0, hi=1000.0, unit="Hz")
+    profile_velocity_rpm: float = num_field(0.0, lo=0.0, hi=61.0, unit="rpm")  # the robot's gait code: none
+    heading_sigma_deg: float = num_field(15.0, lo=0.0, lo_open=True, unit="deg")
+    distance_sigma: float = num_field(0.2, lo=0.0, unit="")  # relative, on distances per cycle ...
+    distance_sigma_mm: float = num_field(1.0, lo=0.0, unit="mm")  # ... in quadrature with this floor
+    track_sigma_mm: float = num_field(2.0, lo=0.0, lo_open=True, unit="mm")  # on a track's RMSE per axis
+    max_evals: int = num_field(120, lo=2, hi=100000, unit="candidates")
+    popsize: int = num_field(8, lo=2, hi=1000, unit="")
+    sigma0: float = num_field(0.25, lo=0.0, lo_open=True, hi=1.0, unit="of each range")
+    seed: int = num_field(1, lo=0, unit="")
+    parallel: ParallelConfig = field(default_factory=ParallelConfig)
+    synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
+
+    def check(self, cfg: SlotConfig) -> None:
+        if cfg.plant.name != "cosserat":
+            raise ConfigError(
+                f"experiment=identify fits the soft legs' model: use plant=cosserat, not {cfg.plant.name}"
+            )
+        if not self.schedules:
+            raise ConfigError("experiment.schedules is empty: name at least one schedule (conf/schedule/)")
+        for name in self.schedules:
+            if name not in cfg.schedules:
+                raise ConfigError(
+                    f"experiment.schedules names {name!r}, which is not a schedule: choose from "
+                    f"{', '.join(sorted(cfg.schedules))} (conf/schedule/)"
+                )
+            check_schedule_ticks(cfg, cfg.schedules[name], self.rate_hz, "experiment.rate_hz")
+            cycle = cycle_s(cfg.schedules[name])
+            first = math.ceil(self.measure_from_s / cycle - 1e-9) * cycle
+            if first + cycle > self.duration + 1e-9:
+                raise ConfigError(
+                    f"experiment.duration = {self.duration:g} s holds no whole cycle of {name} ({cycle:g} s) after "
+                    f"experiment.measure_from_s = {self.measure_from_s:g} s: give experiment.duration >= "
+                    f"{first + cycle:g}"
+                )
+        for gait in self.tracks:
+            if gait not in self.schedules:
+                raise ConfigError(
+                    f"experiment.tracks has a track for {gait!r}, which is not in experiment.schedules: add it there"
+                )
+        if not self.parameters:
+            raise ConfigError("experiment.parameters is empty: name at least one setting to fit")
+        paths = [p.path for p in self.parameters]
+        if len(set(paths)) != len(paths):
+            raise ConfigError(f"experiment.parameters names a setting twice: {', '.join(paths)}")
+        for p in self.parameters:
+            current = setting(cfg, p.path)
+            entries = current if isinstance(current, list) else [current]
+            if not entries or any(not isinstance(v, (int, float)) or isinstance(v, bool) for v in entries):
+                raise ConfigError(f"experiment.parameters: {p.path} is not a numeric setting: fit a number")
+            if not p.lo < p.hi:
+                raise ConfigError(f"experiment.parameters: {p.path} has lo = {p.lo:g} >= hi = {p.hi:g}: give lo < hi")
+            if p.log and p.lo <= 0:
+                raise ConfigError(f"experiment.parameters: {p.path} is searched in log space: give lo > 0")
+        truth = self.synthetic.truth
+        if truth is not None:
+            if len(truth) != len(self.parameters):
+                raise ConfigError(
+                    f"experiment.synthetic.truth has {len(truth)} values for {len(self.parameters)} parameters: "
+                    "give one per parameter, in order"
+                )
+            for p, v in zip(self.parameters, truth, strict=True):
+                if not p.lo <= v <= p.hi:
+                    raise ConfigError(
+                        f"experiment.synthetic.truth: {p.path} = {v:g} is outside its range [{p.lo:g}, {p.hi:g}]"
+                    )
+        elif self.observations != "robot" and not Path(self.observations).expanduser().is_file():
+            raise ConfigError(
+                f"experiment.observations = {self.observations!r} is neither 'robot' nor a CSV file: "
+                "give the path of gait,compass_deg,distance_per_cycle_mm"
+            )
+        self.parallel.check()
+
+
+# --------------------------------------------------------------------------- parameters
+def setting(cfg: Any, path: str) -> Any:
+    """The value at dotted ``path`` of a config; a ConfigError names a path that is not there."""
+    node = cfg
+    for part in path.split("."):
+        if not is_dataclass(node) or part not in {f.name for f in fields(node)}:
+            raise ConfigError(f"experiment.parameters: {path} is not a setting (no {part!r} there)")
+        node = getattr(node, part)
+    return node
+
+
+def with_setting(cfg: Any, path: str, value: float) -> Any:
+    """``cfg`` with ``path`` set to ``value`` (every entry of a list setting)."""
+    head, _, rest = path.partition(".")
+    current = getattr(cfg, head)
+    if rest:
+        return replace(cfg, **{head: with_setting(current, rest, value)})
+    new: Any = [float(value)] * len(current) if isinstance(current, list) else type(current)(value)
+    return replace(cfg, **{head: new})
+
+
+def to_values(specs: list[ParameterSpec], u: np.ndarray) -> np.ndarray:
+    """Parameter values for a point ``u`` of the unit cube the search moves in."""
+    lo = np.array([math.log(p.lo) if p.log else p.lo for p in specs])
+    hi = np.array([math.log(p.hi) if p.log else p.hi for p in specs])
+    v = lo + np.clip(u, 0.0, 1.0) * (hi - lo)
+    return np.array([math.exp(x) if p.log else x for p, x in zip(specs, v, strict=True)])
+
+
+def to_unit(specs: list[ParameterSpec], values: np.ndarray) -> np.ndarray:
+    out = []
+    for p, v in zip(specs, values, strict=True):
+        lo, hi, x = (math.log(p.lo), math.log(p.hi), math.log(v)) if p.log else (p.lo, p.hi, v)
+        out.append((x - lo) / (hi - lo))
+    return np.array(out)
+
+
+def candidate_config(cfg: SlotConfig, specs: list[ParameterSpec], values: np.ndarray) -> SlotConfig:
+    out = with_profile_velocity(cfg, cfg.experiment.profile_velocity_rpm)
+    for p, v in zip(specs, values, strict=True):
+        out = with_setting(out, p.path, float(v))
+    return out
+
+
+# --------------------------------------------------------------------------- evaluation (in workers)
+def evaluate(task: tuple[SlotConfig, list[str], float, float, float, int]) -> dict:
+    """Play the schedules on one candidate model: per gait its displacement metrics and its com track."""
+    cfg, names, duration, rate_hz, measure_from_s, threads = task
+    if threads > 0:
+        import numba
+
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        t, xs = play(cfg, names, duration, rate_hz)
+    except Exception as exc:  # a candidate that diverges is a bad candidate, not a failed fit
+        return {"error": f"{type(exc).__name__}: {exc}"}
+    if not np.isfinite(xs).all():
+        return {"error": "the state went non-finite"}
+    gaits = {name: gait_metrics(t, xs[b], cycle_s(cfg.schedules[name]), measure_from_s) for b, name in enumerate(names)}
+    return {"t": t, "gaits": gaits, "com": {name: xs[b, :, 3:6] for b, name in enumerate(names)}}
+
+
+# --------------------------------------------------------------------------- observations
+@dataclass
+class Observations:
+    """What the fit is held to: per-gait heading and distance per cycle, and com tracks (displacements)."""
+
+    table: pd.DataFrame  # gait, compass_deg, distance_per_cycle_mm (NaN: not observed)
+    tracks: dict[str, tuple[np.ndarray, np.ndarray]]  # gait -> (t from 0, com displacement (n, 3) m)
+
+
+def robot_table(cfg: SlotConfig, names: list[str]) -> pd.DataFrame:
+    rows = []
+    for name in names:
+        s = cfg.schedules[name]
+        d = s.robot_distance_per_cycle_m
+        rows.append(
+            {
+                "gait": name,
+                "compass_deg": math.nan if s.heading_deg is None else float(s.heading_deg),
+                "distance_per_cycle_mm": math.nan if d is None else d * 1e3,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def read_table(path: Path, names: list[str]) -> pd.DataFrame:
+    try:
+        table = pd.read_csv(path, comment="#")
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{path}: not a readable CSV ({exc}); give gait,compass_deg,distance_per_cycle_mm") from None
+    missing = {"gait", "compass_deg", "distance_per_cycle_mm"} - set(table.columns)
+    if missing:
+        raise UserError(
+            f"{path}: no column(s) {', '.join(sorted(missing))}; the header is gait,compass_deg,distance_per_cycle_mm"
+        )
+    try:
+        table = table.astype({"gait": str, "compass_deg": float, "distance_per_cycle_mm": float})
+    except ValueError as exc:
+        raise UserError(
+            f"{path}: a heading or distance is not a number ({exc}); leave a cell blank if unknown"
+        ) from None
+    unknown = sorted(set(table["gait"]) - set(names))
+    if unknown:
+        raise UserError(f"{path}: gait(s) {', '.join(unknown)} are not in experiment.schedules: add them or drop them")
+    return table[["gait", "compass_deg", "distance_per_cycle_mm"]].reset_index(drop=True)
+
+
+def read_track(spec: str) -> tuple[np.ndarray, np.ndarray]:
+    from ..compare import TrajectoryError
+    from .validate import load_trajectory
+
+    try:
+        traj = load_trajectory(spec)
+    except TrajectoryError as exc:
+        raise UserError(str(exc)) from None
+    if COM not in traj.markers:
+        raise UserError(f"{spec}: no '{COM}' marker (columns com_x, com_y, com_z): the fit follows the torso's")
+    com = np.asarray(traj.markers[COM], float)
+    first = np.flatnonzero(np.isfinite(com).all(axis=1))
+    if first.size == 0:
+        raise UserError(f"{spec}: the '{COM}' marker is never tracked")
+    return traj.t - traj.t[0], com - com[first[0]]
+
+
+def write_track_csv(path: Path, t: np.ndarray, com: np.ndarray) -> None:
+    lines = ["# synthetic marker track: the model's torso, with noise (experiment=identify)", "t,com_x,com_y,com_z"]
+    lines += [f"{ti:.4f},{p[0]:.6f},{p[1]:.6f},{p[2]:.6f}" for ti, p in zip(t, com, strict=True)]
+    write_text(path, "\n".join(lines) + "\n")
+
+
+def synthetic_observations(cfg: SlotConfig, out_dir: Path) -> tuple[Path, dict[str, str]]:
+    """The model's own observations at ``experiment.synthetic.truth``, with noise, written as the files a
+    robot's would be (``synthetic/observations.csv`` and a track per gait)."""
+    exp = cfg.experiment
+    syn = exp.synthetic
+    model = candidate_config(cfg, exp.parameters, np.asarray(syn.truth, float))
+    result = evaluate((model, list(exp.schedules), exp.duration, exp.rate_hz, exp.measure_from_s, 0))
+    if "error" in result:
+        raise UserError(f"experiment.synthetic.truth: the model fails there ({result['error']}): choose other values")
+    rng = np.random.default_rng(syn.seed)
+    folder = out_dir / "synthetic"
+    folder.mkdir(parents=True, exist_ok=True)
+    rows, tracks = [], {}
+    for name in exp.schedules:
+        m = result["gaits"][name]
+        rows.append(
+            {
+                "gait": name,
+                "compass_deg": (m["compass_deg"] + rng.normal(0.0, syn.noise_deg)) % 360.0,
+                "distance_per_cycle_mm": max(0.0, m["distance_per_cycle_mm"] + rng.normal(0.0, syn.noise_mm)),
+            }
+        )
+        com = result["com"][name] + rng.normal(0.0, syn.noise_mm * 1e-3, result["com"][name].shape)
+        write_track_csv(folder / f"{name}.csv", result["t"], com)
+        tracks[name] = str(folder / f"{name}.csv")
+    write_csv(pd.DataFrame(rows), folder / "observations.csv", index=False, float_format="%.4f")
+    return folder / "observations.csv", tracks
+
+
+def load_observations(cfg: SlotConfig, table_spec: str, track_specs: dict[str, str]) -> Observations:
+    names = list(cfg.experiment.schedules)
+    table = robot_table(cfg, names) if table_spec == "robot" else read_table(Path(table_spec).expanduser(), names)
+    return Observations(table, {g: read_track(s) for g, s in track_specs.items()})
+
+
+def residuals(cfg: SlotConfig, obs: Observations, result: dict) -> pd.DataFrame:
+    """One row per observation: what, gait, observed, model, sigma, residual = (model - observed) / sigma."""
+    exp = cfg.experiment
+    rows = []
+    for _, r in obs.table.iterrows():
+        m = result["gaits"][r["gait"]]
+        if r["compass_deg"] == r["compass_deg"]:
+            err = wrap_deg(m["compass_deg"] - r["compass_deg"])
+            rows.append(("compass_deg", r["gait"], r["compass_deg"], m["compass_deg"], exp.heading_sigma_deg, err))
+        d = r["distance_per_cycle_mm"]
+        if d == d:
+            sigma = math.hypot(exp.distance_sigma * d, exp.distance_sigma_mm)
+            rows.append(
+                (
+                    "distance_per_cycle_mm",
+                    r["gait"],
+                    d,
+                    m["distance_per_cycle_mm"],
+                    sigma,
+                    m["distance_per_cycle_mm"] - d,
+                )
+            )
+    for gait, (t_obs, com_obs) in obs.tracks.items():
+        t = result["t"]
+        com = result["com"][gait] - result["com"][gait][0]
+        inside = (t_obs >= t[0]) & (t_obs <= t[-1])
+        for k, axis in enumerate(AXES):
+            model = np.interp(t_obs[inside], t, com[:, k])
+            err = model - com_obs[inside, k]
+            ok = np.isfinite(err)
+            rmse = float(np.sqrt(np.mean(err[ok] ** 2))) * 1e3 if ok.any() else math.nan
+            rows.append((f"track_rmse_{axis}_mm", gait, 0.0, rmse, exp.track_sigma_mm, rmse))
+    table = pd.DataFrame(rows, columns=["observation", "gait", "observed", "model", "sigma", "error"])
+    table["residual"] = table["error"] / table["sigma"]
+    return table
+
+
+def cost_of(cfg: SlotConfig, obs: Observations, result: dict) -> float:
+    if "error" in result:
+        return 1e9
+    r = residuals(cfg, obs, result)["residual"].to_numpy(float)
+    return float(np.sum(np.where(np.isfinite(r), r, 1e3) ** 2))
+
+
+# --------------------------------------------------------------------------- run
+def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from ..locomotion.search import search
+
+    exp = cfg.experiment
+    specs = list(exp.parameters)
+    table_spec, track_specs = exp.observations, dict(exp.tracks)
+    if exp.synthetic.truth is not None:
+        path, track_specs = synthetic_observations(cfg, out_dir)
+        table_spec = str(path)
+    obs = load_observations(cfg, table_spec, track_specs)
+    names = list(exp.schedules)
+    k = len(specs)
+    # pycma searches two dimensions at least: one parameter gets an inert second coordinate
+    x0 = np.concatenate([to_unit(specs, np.array([_start_value(cfg, p) for p in specs])), [0.5] * (k == 1)])
+    (out_dir / "logs").mkdir(parents=True, exist_ok=True)
+    meta = {
+        "config": {"yaml": resolved_yaml},
+        "run": {"experiment": "identify", "git_commit": git_commit()},
+        "observations": {"table": json.dumps(obs.table.to_dict(orient="records")), "tracks": json.dumps(track_specs)},
+    }
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    with (
+        pool(exp.parallel, exp.popsize) as engine,
+        Recorder(out_dir / "logs" / "identify.mcap", metadata=meta) as rec,
+        Progress(*columns, console=Console(stderr=True), transient=False) as bar,
+    ):
+        # every core: the engine's processes, each batch's robots on the cores left to it
+        local = exp.parallel.engine == "processes" or exp.parallel.address is None
+        threads = max(1, (os.cpu_count() or 1) // engine.workers) if local else 0
+        task = bar.add_task("identify", total=exp.max_evals + 2)
+        written = 0
+        generation = 0
+
+        def run_candidates(us: list[np.ndarray]) -> list[tuple[np.ndarray, dict, float]]:
+            values = [to_values(specs, u[:k]) for u in us]
+            tasks = [
+                (candidate_config(cfg, specs, v), names, exp.duration, exp.rate_hz, exp.measure_from_s, threads)
+                for v in values
+            ]
+            results = engine.map(evaluate, tasks)
+            return [(v, r, cost_of(cfg, obs, r)) for v, r in zip(values, results, strict=True)]
+
+        def evaluate_generation(us: list[np.ndarray]) -> list[float]:
+            nonlocal written, generation
+            costs = []
+            for v, r, c in run_candidates(us):
+                written += 1
+                costs.append(c)
+                rec.write(
+                    "/identify/candidate",
+                    float(written),
+                    {"generation": generation, "cost": c, "values": v, "failed": "error" in r, **_flat(r)},
+                )
+            generation += 1
+            bar.advance(task, len(us))
+            return costs
+
+        _, best_u = search(
+            evaluate_generation,
+            x0,
+            sigma0=exp.sigma0,
+            popsize=exp.popsize,
+            max_evals=exp.max_evals,
+            seed=exp.seed,
+            bounds=(np.zeros(len(x0)), np.ones(len(x0))),
+        )
+        ((v, r, c),) = run_candidates([best_u])
+        bar.advance(task)
+        if "error" in r:
+            raise UserError(f"the best candidate fails when run again ({r['error']}): check the parameter ranges")
+        rec.write("/identify/best", 0.0, {"cost": c, "values": v, **_flat(r)})
+        for gait in names:  # the best candidate's com tracks, one record per tick (log time: the track's)
+            for ti, p in zip(r["t"], r["com"][gait], strict=True):
+                rec.write("/identify/best_com", float(ti), {"gait": gait, "x": p[0], "y": p[1], "z": p[2]})
+    report(out_dir, cfg)
+
+
+def _start_value(cfg: SlotConfig, p: ParameterSpec) -> float:
+    """The search starts from the config's own value (a list setting: its mean), held inside the range."""
+    v = setting(cfg, p.path)
+    v = float(np.mean(v)) if isinstance(v, list) else float(v)
+    return min(max(v, p.lo), p.hi)
+
+
+def _flat(result: dict) -> dict:
+    """A candidate's per-gait numbers as one flat record (gait.metric)."""
+    if "error" in result:
+        return {}
+    return {f"{g}.{k}": float(v) for g, m in result["gaits"].items() for k, v in m.items()}
+
+
+# --------------------------------------------------------------------------- report
+def _result_from_log(log: Log, names: list[str]) -> dict:
+    """The best candidate's per-gait metrics and com tracks, as :func:`evaluate` returned them."""
+    best = log["/identify/best"].iloc[0]
+    gaits = {g: {c.split(".", 1)[1]: float(best[c]) for c in best.index if c.startswith(g + ".")} for g in names}
+    frame = log["/identify/best_com"]
+    by_gait = {g: frame[frame["gait"] == g] for g in names}
+    t = by_gait[names[0]]["t"].to_numpy(float)
+    return {"t": t, "gaits": gaits, "com": {g: f[list(AXES)].to_numpy(float) for g, f in by_gait.items()}}
+
+
+def report(out_dir: Path, cfg: SlotConfig) -> dict:
+    """Fit, residuals, spread, candidates, metrics and the figure from ``logs/identify.mcap`` alone."""
+    from scipy.stats import chi2
+
+    from ..figures.identify import plot_identify
+
+    exp = cfg.experiment
+    specs = list(exp.parameters)
+    path = out_dir / "logs" / "identify.mcap"
+    log = read_log(path)
+    meta = log.metadata.get("observations", {})
+    table = pd.DataFrame(json.loads(meta.get("table", "[]")), columns=["gait", "compass_deg", "distance_per_cycle_mm"])
+    table = table.astype({"compass_deg": float, "distance_per_cycle_mm": float})
+    track_specs = json.loads(meta.get("tracks", "{}"))
+    obs = Observations(table, {g: read_track(s) for g, s in track_specs.items()})
+    names = list(exp.schedules)
+    result = _result_from_log(log, names)
+    res = residuals(cfg, obs, result)
+    write_csv(res, out_dir / "residuals.csv", index=False, float_format="%.6g")
+
+    candidates = log["/identify/candidate"].reset_index(drop=True)
+    value_cols = [f"values.{i}" for i in range(len(specs))]
+    candidates = candidates.rename(columns=dict(zip(value_cols, [p.path for p in specs], strict=True)))
+    write_csv(candidates.drop(columns="t"), out_dir / "candidates.csv", index=False, float_format="%.6g")
+
+    best = log["/identify/best"].iloc[0]
+    best_values = [float(best[f"values.{i}"]) for i in range(len(specs))]
+    best_cost = float(best["cost"])
+    # Delta-chi^2 region: the candidates whose cost is within the 68 % quantile of chi^2 with k degrees of
+    # freedom of the best (a joint confidence region when the sigmas are the observations' standard errors)
+    delta = float(chi2.ppf(0.683, len(specs)))
+    near = candidates[candidates["cost"] <= min(best_cost, candidates["cost"].min()) + delta]
+    truth = exp.synthetic.truth
+    spread = []
+    for i, p in enumerate(specs):
+        vals = near[p.path].to_numpy(float) if len(near) else np.array([best_values[i]])
+        row = {
+            "parameter": p.path,
+            "best": best_values[i],
+            "lo_68": float(min(vals.min(), best_values[i])),
+            "hi_68": float(max(vals.max(), best_values[i])),
+            "range_lo": p.lo,
+            "range_hi": p.hi,
+            "candidates_in_region": int(len(near)),
+        }
+        if truth is not None:
+            row["truth"] = float(truth[i])
+            row["error_rel"] = (best_values[i] - truth[i]) / truth[i] if truth[i] else math.nan
+            row["truth_in_region"] = bool(row["lo_68"] <= truth[i] <= row["hi_68"])
+        spread.append(row)
+    spread_table = pd.DataFrame(spread)
+    write_csv(spread_table, out_dir / "spread.csv", index=False, float_format="%.6g")
+    overrides = {p.path: _as_setting(setting(cfg, p.path), v) for p, v in zip(specs, best_values, strict=True)}
+    write_text(
+        out_dir / "fit.yaml",
+        "# Written by `slot run experiment=identify`: the best values, as overrides (key=value on the command line)\n"
+        + yaml.safe_dump({"cost": best_cost, "overrides": overrides}, sort_keys=False, width=120),
+    )
+    finite = res.replace([np.inf, -np.inf], np.nan)
+    metrics = {
+        "cost": best_cost,
+        "evaluations": int(len(candidates)),
+        "failed": int(candidates["failed"].sum()) if "failed" in candidates else 0,
+        "delta_chi2_68": delta,
+        "parameters": [
+            {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()} for r in spread
+        ],
+        "residuals": [
+            {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
+            for r in finite.to_dict(orient="records")
+        ],
+    }
+    write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2, allow_nan=False))
+    plot_identify(candidates, [p.path for p in specs], spread_table, res, out_dir / "fig_identify.png")
+    return metrics
+
+
+def _as_setting(current: Any, value: float) -> Any:
+    return [round(value, 6)] * len(current) if isinstance(current, list) else round(value, 6)
+
+
+EXPERIMENTS.add("identify", Experiment(IdentifyExperiment, run, report))

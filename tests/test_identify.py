@@ -1,0 +1,129 @@
+"""experiment=identify: parameters, observations, the fit's recovery of known values, and its engines."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from slotexp.errors import ConfigError
+from slotexp.jobs.identify import (
+    ParameterSpec,
+    read_track,
+    run,
+    setting,
+    to_unit,
+    to_values,
+    with_setting,
+    write_track_csv,
+)
+from slotexp.parallel import ParallelConfig, pool
+from tests.helpers import assert_one_line_error, assert_png, load, slot
+
+SMALL = (
+    "plant=cosserat",
+    "experiment=identify",
+    "experiment.schedules=[forward]",
+    "experiment.duration=1.68",  # two cycles of 0.84 s
+    "experiment.measure_from_s=0.84",
+    "experiment.parameters=[{path: robot.servo.horn_zero_deg, lo: 100.0, hi: 130.0}]",
+    "robot.servo.horn_zero_deg=[120,120,120,120]",  # the search starts here
+    "experiment.synthetic.truth=[112.0]",
+    "experiment.synthetic.noise_mm=0.2",
+    "experiment.synthetic.noise_deg=1.0",
+    "experiment.popsize=4",
+    "experiment.max_evals=16",
+    "experiment.sigma0=0.3",
+)
+
+
+def test_a_parameter_sets_scalars_and_every_entry_of_a_list_and_maps_to_the_unit_cube_and_back():
+    cfg = load("plant=cosserat")
+    out = with_setting(with_setting(cfg, "robot.contact.friction", 0.37), "robot.servo.horn_zero_deg", 101.0)
+    assert out.robot.contact.friction == 0.37 and out.robot.servo.horn_zero_deg == [101.0] * 4
+    assert cfg.robot.contact.friction != 0.37  # the original is untouched
+    assert setting(out, "robot.servo.horn_zero_deg") == [101.0] * 4
+    with pytest.raises(ConfigError, match="robot.contact.frictoin is not a setting"):
+        setting(cfg, "robot.contact.frictoin")
+    specs = [ParameterSpec("a", 0.05, 1.0, True), ParameterSpec("b", 80.0, 140.0, False)]
+    values = np.array([0.3, 110.0])
+    np.testing.assert_allclose(to_values(specs, to_unit(specs, values)), values, rtol=1e-12)
+    np.testing.assert_allclose(to_values(specs, np.array([0.5, 0.5])), [math.sqrt(0.05), 110.0], rtol=1e-12)
+
+
+def test_a_track_round_trips_through_the_marker_csv_as_a_displacement(tmp_path: Path):
+    t = np.arange(0, 1.0, 0.02)
+    com = np.column_stack([0.1 + 0.01 * t, -0.2 + 0 * t, 0.04 + 0.001 * np.sin(t)])
+    write_track_csv(tmp_path / "c.csv", t, com)
+    t2, d = read_track(str(tmp_path / "c.csv"))
+    np.testing.assert_allclose(t2, t, atol=1e-4)
+    np.testing.assert_allclose(d, com - com[0], atol=2e-6)
+
+
+def test_identification_recovers_a_known_horn_zero_from_the_models_own_noisy_observations(tmp_path: Path):
+    # Observations made by the model at horn zero 112 deg (noise 0.2 mm, 1 deg), the search starting at 120:
+    # the fit comes back within 5 % (the target), and within the spread it reports.
+    cfg = load(*SMALL, "experiment.parallel.workers=1")
+    run(cfg, tmp_path, "{}")
+    spread = pd.read_csv(tmp_path / "spread.csv")
+    row = spread.iloc[0]
+    assert row["parameter"] == "robot.servo.horn_zero_deg" and row["truth"] == 112.0
+    assert abs(row["error_rel"]) < 0.05
+    assert abs(row["best"] - 112.0) < 2.0  # in fact: the track's height pins the horn zero to about a degree
+    fit = yaml.safe_load((tmp_path / "fit.yaml").read_text())
+    assert fit["overrides"]["robot.servo.horn_zero_deg"] == [pytest.approx(row["best"], rel=1e-5)] * 4
+    residuals = pd.read_csv(tmp_path / "residuals.csv")
+    assert set(residuals["observation"]) == {
+        "compass_deg",
+        "distance_per_cycle_mm",
+        "track_rmse_x_mm",
+        "track_rmse_y_mm",
+        "track_rmse_z_mm",
+    }
+    assert fit["cost"] == pytest.approx(float((residuals["residual"] ** 2).sum()), rel=1e-4)  # CSV: 6 digits
+    candidates = pd.read_csv(tmp_path / "candidates.csv")
+    assert len(candidates) == 17 and candidates["cost"].min() <= fit["cost"] + 1e-9  # the start, then 16
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["evaluations"] == 17
+    assert_png(tmp_path / "fig_identify.png")
+
+
+def test_a_dask_cluster_and_local_processes_evaluate_the_same_candidates(tmp_path: Path):
+    # The engine is a setting: a real local Dask cluster (two worker processes) gives the in-process results.
+    pytest.importorskip("distributed")
+    tasks = [(k, 3.0) for k in range(5)]
+    with pool(ParallelConfig(engine="dask", workers=2), 5) as dask, pool(ParallelConfig(workers=1), 5) as here:
+        assert dask.workers == 2
+        assert dask.map(_power, tasks) == here.map(_power, tasks) == [k**3.0 for k in range(5)]
+    cfg = load(*SMALL, "experiment.max_evals=4", "experiment.parallel.engine=dask", "experiment.parallel.workers=2")
+    run(cfg, tmp_path / "dask", "{}")
+    cfg = load(*SMALL, "experiment.max_evals=4", "experiment.parallel.workers=1")
+    run(cfg, tmp_path / "here", "{}")
+    a, b = (pd.read_csv(tmp_path / d / "candidates.csv") for d in ("dask", "here"))
+    pd.testing.assert_frame_equal(a, b)  # the same seeded search, the same arithmetic, wherever it ran
+
+
+def _power(task: tuple[int, float]) -> float:
+    return task[0] ** task[1]
+
+
+@pytest.mark.parametrize(
+    ("override", "names"),
+    [
+        ("experiment.synthetic.truth=[0.3,110,1]", ["synthetic.truth", "one per parameter"]),
+        ("experiment.synthetic.truth=[0.3,60]", ["horn_zero_deg = 60", "outside its range"]),
+        ("experiment.parameters=[{path: robot.contact.frictoin, lo: 0.1, hi: 1}]", ["frictoin is not a setting"]),
+        ("experiment.parameters=[{path: robot.contact.friction, lo: 1, hi: 0.1}]", ["lo < hi"]),
+        ("experiment.parameters=[{path: robot.leg.names, lo: 0.1, hi: 1}]", ["not a numeric setting"]),
+        ("experiment.observations=/nonexistent.csv", ["neither 'robot' nor a CSV"]),
+        ("experiment.parallel.address=tcp://localhost:1", ["engine=dask"]),
+    ],
+)
+def test_bad_identification_settings_get_one_line(tmp_path: Path, override: str, names: list[str]):
+    args = ["plant=cosserat", "experiment=identify", override]
+    assert_one_line_error(slot("run", *args, f"hydra.run.dir={tmp_path}", cwd=tmp_path), *names)
