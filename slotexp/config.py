@@ -386,7 +386,10 @@ class ScheduleConfig:
     horn``, through the horn map ``robot.servo.horn_*``) or tendon angles (``units:
     tendon``), keyed by leg name (``robot.leg.names``). ``heading_deg`` is the robot's
     compass heading the gait walks on the robot (clockwise from forward: 90 is right),
-    ``robot_distance_per_cycle_m`` how far it goes per cycle there (None: not known).
+    ``robot_distance_per_cycle_m`` how far it goes per cycle there (None: not known),
+    ``turn`` the way a turning gait spins on the robot's control pad (cw, ccw; None: not a
+    turn). ``heldout`` marks the robot's gaits kept out of every fit and choice of model
+    option (``experiment=identify`` refuses them): they are the model's test.
     ``controller=schedule`` plays one (``controller.schedule``); ``experiment=replay`` several.
     """
 
@@ -396,6 +399,8 @@ class ScheduleConfig:
     units: str = choice_field("horn", "horn", "tendon")
     robot_distance_per_cycle_m: float | None = num_field(None, lo=0.0, unit="m")
     steps: list[dict[str, float]] = field(default_factory=list)
+    turn: str | None = None  # cw or ccw: a turning gait's spin on the robot's control pad
+    heldout: bool = False
 
 
 # --------------------------------------------------------------------------- scenarios

@@ -122,6 +122,7 @@ def _power(task: tuple[int, float]) -> float:
         ("experiment.parameters=[{path: robot.leg.names, lo: 0.1, hi: 1}]", ["not a numeric setting"]),
         ("experiment.observations=/nonexistent.csv", ["neither 'robot' nor a CSV"]),
         ("experiment.parallel.address=tcp://localhost:1", ["engine=dask"]),
+        ("experiment.schedules=[forward,walk_60]", ["walk_60", "held-out"]),
     ],
 )
 def test_bad_identification_settings_get_one_line(tmp_path: Path, override: str, names: list[str]):

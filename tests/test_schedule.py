@@ -29,20 +29,22 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "slot_hardwar
 OURS = {"FL": "FL", "FR": "FR", "BL": "RL", "BR": "RR"}  # the robot authors' leg names -> ours
 
 
-def test_the_shipped_schedules_are_the_robots_gaits():
+def test_the_shipped_schedules_are_the_robots_gaits_and_only_those_in_shared_data_are_not_held_out():
     # Every visible gait of the robot's file is a schedule config with the same numbers (the file's legs
-    # FL FR BL BR are our FL FR RL RR). Without the shared data beside the repository, against our copy alone.
+    # FL FR BL BR are our FL FR RL RR); every other shipped schedule is one of the robot's held-out gaits,
+    # marked so. Without the shared data beside the repository, against our copy alone.
     cfg = load()
     source = yaml.safe_load(SHARED.read_text())["gaits"] if SHARED.exists() else None
     names = set(p.stem for p in (CONF / "schedule").glob("*.yaml"))
-    assert (
-        names
-        == set(cfg.schedules)
-        == {"forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"}
-    )
+    visible = {"forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"}
+    assert names == set(cfg.schedules) and {n for n in names if not cfg.schedules[n].heldout} == visible
+    assert len(names - visible) == 13  # eleven headings and two turns
+    for name in names - visible:
+        s = cfg.schedules[name]
+        assert (s.heading_deg is None) == (s.turn is not None) and s.robot_distance_per_cycle_m is None
     if source is None:
         pytest.skip("shared/data is not beside this checkout")
-    assert set(source) == names
+    assert set(source) == visible
     for name, gait in source.items():
         ours = cfg.schedules[name]
         assert ours.step_s == gait["step_s"] and ours.heading_deg == gait["heading_deg"] and ours.units == "horn"

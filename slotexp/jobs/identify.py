@@ -48,7 +48,7 @@ from ..parallel import ParallelConfig, pool
 from ..record import Log, Recorder, read_log
 from . import EXPERIMENTS, Experiment
 from ._logged import git_commit
-from .replay import VISIBLE
+from .replay import VISIBLE, check_whole_cycle
 
 COM = "com"
 AXES = ("x", "y", "z")
@@ -118,15 +118,13 @@ class IdentifyExperiment:
                     f"experiment.schedules names {name!r}, which is not a schedule: choose from "
                     f"{', '.join(sorted(cfg.schedules))} (conf/schedule/)"
                 )
-            check_schedule_ticks(cfg, cfg.schedules[name], self.rate_hz, "experiment.rate_hz")
-            cycle = cycle_s(cfg.schedules[name])
-            first = math.ceil(self.measure_from_s / cycle - 1e-9) * cycle
-            if first + cycle > self.duration + 1e-9:
+            if cfg.schedules[name].heldout:
                 raise ConfigError(
-                    f"experiment.duration = {self.duration:g} s holds no whole cycle of {name} ({cycle:g} s) after "
-                    f"experiment.measure_from_s = {self.measure_from_s:g} s: give experiment.duration >= "
-                    f"{first + cycle:g}"
+                    f"experiment.schedules names {name!r}, a held-out gait (the model's test, never fitted): "
+                    f"fit on the gaits in shared/data ({', '.join(VISIBLE)})"
                 )
+            check_schedule_ticks(cfg, cfg.schedules[name], self.rate_hz, "experiment.rate_hz")
+            check_whole_cycle(cfg.schedules[name], self.duration, self.measure_from_s)
         for gait in self.tracks:
             if gait not in self.schedules:
                 raise ConfigError(

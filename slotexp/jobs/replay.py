@@ -21,7 +21,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..atomic import write_csv, write_text
-from ..config import ConfigError, SlotConfig, check_run_length, check_schedule_ticks, num_field
+from ..config import ConfigError, ScheduleConfig, SlotConfig, check_run_length, check_schedule_ticks, num_field
 from ..locomotion.schedules import cycle_s, gait_metrics, with_profile_velocity, wrap_deg
 from ..runlog import find_logs, load_run
 from . import EXPERIMENTS, Experiment
@@ -58,15 +58,19 @@ class ReplayExperiment:
                     f"{', '.join(sorted(cfg.schedules))} (conf/schedule/)"
                 )
             check_schedule_ticks(cfg, cfg.schedules[name], self.rate_hz, "experiment.rate_hz")
-            cycle = cfg.schedules[name].step_s * len(cfg.schedules[name].steps)
-            first = math.ceil(self.measure_from_s / cycle - 1e-9) * cycle  # cycles are measured from here
-            if first + cycle > self.duration + 1e-9:
-                raise ConfigError(
-                    f"experiment.duration = {self.duration:g} s holds no whole cycle of {name} ({cycle:g} s) after "
-                    f"experiment.measure_from_s = {self.measure_from_s:g} s: give experiment.duration >= "
-                    f"{first + cycle:g}"
-                )
+            check_whole_cycle(cfg.schedules[name], self.duration, self.measure_from_s)
         check_run_length(cfg, self.duration)
+
+
+def check_whole_cycle(schedule: ScheduleConfig, duration: float, measure_from_s: float) -> None:
+    """A run of ``duration`` must hold a whole cycle of ``schedule`` after ``measure_from_s``."""
+    cycle = cycle_s(schedule)
+    first = math.ceil(measure_from_s / cycle - 1e-9) * cycle  # cycles are measured from here
+    if first + cycle > duration + 1e-9:
+        raise ConfigError(
+            f"experiment.duration = {duration:g} s holds no whole cycle of {schedule.name} ({cycle:g} s) after "
+            f"experiment.measure_from_s = {measure_from_s:g} s: give experiment.duration >= {first + cycle:g}"
+        )
 
 
 def schedule_config(cfg: SlotConfig, name: str) -> SlotConfig:
