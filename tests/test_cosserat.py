@@ -333,3 +333,27 @@ def test_a_torso_on_the_ground_carries_its_weight_there_and_its_friction_stays_i
     assert friction @ np.array([0.3, 0.1]) < 0.0  # against the slide
     off = _plant("robot.torso.ground_contact=false")[1]
     assert off.belly_points.shape == (0, 3)
+
+
+@pytest.mark.parametrize("offset", [0.0, -0.015])
+def test_standing_still_the_ground_pushes_up_under_the_centre_of_mass_wherever_the_torso_mass_sits(offset):
+    # robot.torso.com_offset: the torso's mass centre 15 mm behind its box's centre. Standing still on equal
+    # tendons, the ground's normal forces (k times each node's depth) carry the weight and their centre of
+    # pressure lies under the whole robot's centre of mass: the rear feet carry more.
+    cfg, plant = _plant(f"robot.torso.com_offset=[{offset},0]", "robot.contact.friction=0.6")
+    for _ in range(150):
+        plant.step(TendonCommand(np.full(4, 80.0)), 1 / 30)
+    nodes = plant.leg_world().reshape(-1, 3)
+    normal = cfg.robot.contact.stiffness * np.maximum(0.0, -nodes[:, 2])
+    # the weight, to the little the penalty's damping still carries while the legs creep (measured < 1 %)
+    assert normal.sum() == pytest.approx(_total_mass(plant) * cfg.sim.gravity, rel=0.02)
+    pressure = normal @ nodes[:, 0:2] / normal.sum()
+    np.testing.assert_allclose(pressure, plant.centre_of_mass()[0:2], atol=1e-3)  # measured < 0.3 mm
+    box_centre = plant.torso[0] - offset  # the box's centre, in x (the torso pitches 2.3 deg: cos = 0.999)
+    assert abs(plant.state()[1]) < np.radians(3.0)
+    front = plant.out[[0, 3], 4].sum()  # FL, FR
+    rear = plant.out[[1, 2], 4].sum()
+    if offset == 0.0:
+        assert front == pytest.approx(rear, rel=0.05) and abs(pressure[0] - box_centre) < 2e-3
+    else:
+        assert rear > 1.1 * front and pressure[0] < box_centre - 0.01  # measured 11.3 N against 9.5 N

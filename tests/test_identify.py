@@ -15,6 +15,7 @@ from slotexp.errors import ConfigError
 from slotexp.jobs.identify import (
     ParameterSpec,
     read_track,
+    report,
     run,
     setting,
     to_unit,
@@ -91,6 +92,9 @@ def test_identification_recovers_a_known_horn_zero_from_the_models_own_noisy_obs
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["evaluations"] == 17
     assert_png(tmp_path / "fig_identify.png")
+    (tmp_path / "spread.csv").unlink()
+    assert report(tmp_path, cfg) == metrics  # every output is rebuilt from the log alone (slot figures)
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "spread.csv"), spread)
 
 
 def test_a_dask_cluster_and_local_processes_evaluate_the_same_candidates(tmp_path: Path):

@@ -21,8 +21,12 @@ def plot_identify(
     cost = fig.add_subplot(grid[0, 0])
     c = candidates["cost"].to_numpy(float)
     n = np.arange(1, len(c) + 1)
-    cost.semilogy(n, c, ".", color="0.6", ms=3, label="candidate")
+    failed = candidates["failed"].to_numpy(bool) if "failed" in candidates else np.zeros(len(c), bool)
+    cost.semilogy(n[~failed], c[~failed], ".", color="0.6", ms=3, label="candidate")
     cost.semilogy(n, np.minimum.accumulate(c), color="#1f77b4", label="best so far")
+    if failed.any():  # diverged: no cost to draw, marked along the top
+        top = c[~failed].max() if (~failed).any() else 1.0
+        cost.semilogy(n[failed], np.full(failed.sum(), top), "x", color="#d62728", ms=4, label="failed")
     cost.set_xlabel("candidate")
     cost.set_ylabel("cost (sum of squared residuals)")
     cost.legend(fontsize=7)

@@ -55,7 +55,13 @@ def belly_points(torso: TorsoConfig) -> np.ndarray:
     if not torso.ground_contact:
         return np.zeros((0, 3))
     lx, ly, lz = torso.size
-    return np.array([[a * lx / 2, b * ly / 2, -lz / 2] for a in (-1.0, 0.0, 1.0) for b in (-1.0, 0.0, 1.0)])
+    points = np.array([[a * lx / 2, b * ly / 2, -lz / 2] for a in (-1.0, 0.0, 1.0) for b in (-1.0, 0.0, 1.0)])
+    return points - com_offset(torso)
+
+
+def com_offset(torso: TorsoConfig) -> np.ndarray:
+    """The torso's mass centre from its box's centre (3,), body frame (``robot.torso.com_offset``, horizontal)."""
+    return np.array([*torso.com_offset, 0.0])
 
 
 def pose_between(start: np.ndarray, end: np.ndarray, s: float) -> np.ndarray:
@@ -749,10 +755,10 @@ class CosseratPlant:
         self.torso_mass = cfg.robot.torso.mass + 4 * m.mass[0]
         self.inertia = self.torso_mass / 12.0 * np.diag([ly**2 + lz**2, lx**2 + lz**2, lx**2 + ly**2])
         self.yaw = np.deg2rad(np.asarray(leg_cfg.yaw_deg, dtype=float))
-        # leg roots on the torso's bottom face, relative to the torso centre
+        # leg roots on the torso's bottom face, relative to the torso's mass centre
         self.corners = np.column_stack(
             [np.sign(np.cos(self.yaw)) * lx / 2, np.sign(np.sin(self.yaw)) * ly / 2, np.full(4, -lz / 2)]
-        )
+        ) - com_offset(cfg.robot.torso)
         drop = m.rest_pos[0, 1] - m.rest_pos[-1, 1]
         # The torso starts level, with the resting feet just touching the ground; settling lowers it
         # onto the scenario's offset pose (see _settle_legs).
