@@ -223,6 +223,21 @@ RUNS = {
         "robot.contact.friction=0.6",
         "experiment.gif=false",
     ],
+    # Model options one at a time on the default model (replay: on against off), each for its physical reason
+    # (results/README.md, "The robot's own gaits"): the horn zero at eq. 11's standing angle, a stiffer leg (E),
+    # a stiffer tendon, the authors' newer leg length, a lighter torso, its mass centre 15 mm back, a straight leg.
+    **{
+        f"replay_{name}": ["experiment=replay", "plant=cosserat", override, "experiment.gif=false"]
+        for name, override in {
+            "horn96": "robot.servo.horn_zero_deg=[96,96,96,96]",
+            "E2e7": "robot.leg.youngs_modulus=2e7",
+            "tendon_k1e5": "robot.tendon.stiffness=1e5",
+            "leg0.18": "robot.leg.length=0.18",
+            "torso1.5kg": "robot.torso.mass=1.5",
+            "com_back15mm": "robot.torso.com_offset=[-0.015,0]",
+            "straight_leg": "robot.leg.rest_shape=straight",
+        }.items()
+    },
     # The fit of the uncertain settings to the robot's visible gaits (shared/data), and the check that the same
     # fit recovers known values from the model's own noisy observations (tables and tracks of every gait).
     "identify_robot": ["experiment=identify", "plant=cosserat", FITTED, "experiment.max_evals=96"],

@@ -63,8 +63,18 @@ class Pool(Protocol):
         ...
 
 
+def inside_foreign_pool() -> bool:
+    """True in a worker of another process pool, e.g. a Hydra joblib sweep job (loky): its start method is
+    not one multiprocessing knows, so a process started from here could not start (it would look for it)."""
+    method = mp.get_start_method(allow_none=True)
+    return method is not None and method not in mp.get_all_start_methods()
+
+
 def n_workers(requested: int, n_tasks: int) -> int:
-    """Workers for ``n_tasks`` parallel tasks: ``requested`` (0 = one per core), never more than the tasks."""
+    """Workers for ``n_tasks`` parallel tasks: ``requested`` (0 = one per core), never more than the tasks;
+    one (this process) inside another pool's worker, where the sweep is already the parallel level."""
+    if inside_foreign_pool():
+        return 1
     cores = os.cpu_count() or 1
     return max(1, min(n_tasks, requested if requested > 0 else cores))
 

@@ -16,6 +16,8 @@ TABLE1 = "scenario,max_cost,mean_cost,final_cost,settle_s,infeasible_steps\n"
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory) -> Path:
+    # A two-scenario perturb sweep over two solvers, as the README shows it: the joblib launcher's jobs cannot
+    # start process pools of their own, so each runs its scenarios in its own process (slotexp.parallel)
     root = tmp_path_factory.mktemp("sweep")
     out = root / "multirun"
     ok(
@@ -25,8 +27,7 @@ def sweep(tmp_path_factory) -> Path:
             "experiment=perturb",
             "experiment.scenarios=[baseline,noise]",
             "experiment.duration=0.5",
-            "experiment.n_jobs=1",
-            "solver=daqp,osqp_direct",
+            "solver=daqp,osqp_direct",  # experiment.n_jobs at its default: each job runs its scenarios itself
             f"hydra.sweep.dir={out}",
             cwd=root,
             timeout=300,
