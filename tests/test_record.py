@@ -466,3 +466,30 @@ def test_the_fast_encoder_writes_what_the_checked_conversion_writes(tmp_path: Pa
         rec.write("/m", 0.0, {"x": 1.0})
         with pytest.raises(TypeError, match="'/m.x'"):
             rec.write("/m", 0.1, {"x": object()})
+
+
+def test_outputs_get_the_mode_open_would_give_them_and_json_is_strict(tmp_path: Path):
+    # Colleagues on a shared machine read our tables and figures: an atomically written output has the
+    # mode an ordinary open() gives (0666 less the umask), not mkstemp's 0600. JSON holds no NaN, which
+    # strict readers (a browser's JSON.parse) refuse: non-finite numbers are null.
+    import json
+    import os
+    import stat
+
+    from slotexp.atomic import write_json, write_text
+
+    mask = os.umask(0o022)
+    os.umask(mask)
+    ordinary = tmp_path / "ordinary.txt"
+    ordinary.write_text("x")
+    write_text(tmp_path / "table.md", "| a |\n")
+    assert stat.S_IMODE((tmp_path / "table.md").stat().st_mode) == stat.S_IMODE(ordinary.stat().st_mode)
+    assert stat.S_IMODE((tmp_path / "table.md").stat().st_mode) == 0o666 & ~mask
+    write_json(tmp_path / "m.json", {"a": float("nan"), "b": [np.float64(np.inf), 1.5], "c": np.int64(3)})
+    text = (tmp_path / "m.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict JSON: {c}")) == {
+        "a": None,
+        "b": [None, 1.5],
+        "c": 3,
+    }

@@ -13,13 +13,12 @@ Speed goals are checked here and reported with numbers, never in timed tests.
 from __future__ import annotations
 
 import csv
-import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..atomic import write_text
+from ..atomic import write_json
 from ..config import SlotConfig
 from ..registry import Registry
 
@@ -68,5 +67,5 @@ def write(rows: list[BenchRow], out_dir: Path) -> Path:
             writer.writerow(
                 [r.component, r.variant, f"{r.median_us:.4g}", f"{r.p99_us:.4g}", f"{r.ratio_vs_baseline:.4g}"]
             )
-    write_text(out_dir / "bench.json", json.dumps([asdict(r) for r in rows], indent=2, default=float))
+    write_json(out_dir / "bench.json", [asdict(r) for r in rows])
     return path

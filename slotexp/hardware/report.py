@@ -7,9 +7,9 @@ loop-timing summary from the log's ``loop`` record is added to ``metrics.json``.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
+from ..atomic import write_json
 from ..jobs.simulate import write_report
 from ..record import read_log
 from ..runlog import find_logs
@@ -23,5 +23,5 @@ def report(run_dir: Path, velocity: list[float], legs: list[str]) -> dict:
     meta = read_log(find_logs(run_dir)[0], topics=()).metadata  # the metadata alone
     result["loop"] = {k: float(v) for k, v in meta.get("loop", {}).items()}
     result["stop_reason"] = meta.get("summary", {}).get("stop_reason", "")
-    (run_dir / "metrics.json").write_text(json.dumps(result, indent=2))
+    write_json(run_dir / "metrics.json", result)
     return result

@@ -9,13 +9,12 @@ controller inverts it as theta = (f_z - b) / a.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..atomic import write_csv, write_text
+from ..atomic import write_csv, write_json, write_text
 from ..config import SlotConfig, num_field
 from ..errors import ConfigError
 from ..record import Recorder, read_log
@@ -113,7 +112,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         index=False,
         float_format="%.6g",
     )
-    write_text(out_dir / "calibrate.json", json.dumps(result, indent=2))
+    write_json(out_dir / "calibrate.json", result)
     write_text(
         out_dir / "actuation_calibrated.yaml",
         "# @package robot.actuation\n"

@@ -20,7 +20,6 @@ and the figures ``fig_gait_polar.png`` (best speed per heading) and
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,7 +27,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from ..atomic import write_csv, write_text
+from ..atomic import write_csv, write_json, write_text
 from ..config import GaitStyleConfig, PrimitiveConfig, SlotConfig, num_field
 from ..errors import ConfigError
 from ..locomotion.openloop import GaitMetrics, run_gait
@@ -354,7 +353,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         if len(verified)
         else [],
     }
-    write_text(out_dir / "metrics.json", json.dumps(result, indent=2, default=float))
+    write_json(out_dir / "metrics.json", result)
     plot_search(candidates, out_dir / "fig_search.png")
     if len(verified):
         plot_polar(verified, out_dir / "fig_gait_polar.png", exp.style)

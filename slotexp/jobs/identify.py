@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from ..atomic import write_csv, write_text
+from ..atomic import write_csv, write_json, write_text
 from ..config import SlotConfig, check_schedule_ticks, num_field
 from ..errors import ConfigError, UserError
 from ..locomotion.schedules import cycle_s, gait_metrics, play, with_profile_velocity, wrap_deg
@@ -538,21 +538,15 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         "# Written by `slot run experiment=identify`: the best values, as overrides (key=value on the command line)\n"
         + yaml.safe_dump({"cost": best_cost, "overrides": overrides}, sort_keys=False, width=120),
     )
-    finite = res.replace([np.inf, -np.inf], np.nan)
     metrics = {
         "cost": best_cost,
         "evaluations": int(len(candidates)),
         "failed": int(candidates["failed"].sum()) if "failed" in candidates else 0,
         "delta_chi2_68": delta,
-        "parameters": [
-            {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()} for r in spread
-        ],
-        "residuals": [
-            {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
-            for r in finite.to_dict(orient="records")
-        ],
+        "parameters": spread,
+        "residuals": res.to_dict(orient="records"),
     }
-    write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2, allow_nan=False))
+    write_json(out_dir / "metrics.json", metrics)
     plot_identify(candidates, [p.path for p in specs], spread_table, res, out_dir / "fig_identify.png")
     return metrics
 

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..atomic import write_text
+from ..atomic import write_json
 from ..config import SlotConfig
 from ..errors import ConfigError
 from ..record import Recorder
@@ -47,7 +46,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
             "n_nodes": sim.model.n_nodes,
         }
     )
-    write_text(out_dir / "leg.json", json.dumps(result, indent=2))
+    write_json(out_dir / "leg.json", result)
     (out_dir / "logs").mkdir(parents=True, exist_ok=True)
     meta = {"config": {"yaml": resolved_yaml}, "run": {"experiment": "leg", "git_commit": git_commit()}}
     with Recorder(out_dir / "logs" / "leg.mcap", metadata=meta) as rec:

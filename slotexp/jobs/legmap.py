@@ -9,14 +9,13 @@ error on the grid and on held-out points between grid points) and
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from ..atomic import write_csv, write_text
+from ..atomic import write_csv, write_json
 from ..config import SlotConfig, num_field, vec_field
 from ..errors import ConfigError
 from ..record import Recorder, read_log
@@ -151,7 +150,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
     write_csv(stuck.drop(columns="t"), out_dir / "legmap_stuck.csv", index=False, float_format="%.6g")
     stance = float(log.metadata["run"]["stance_root_height_m"])
     result = {"stance_root_height_m": stance, "fits": {k: f.as_dict() for k, f in fits.items()}}
-    write_text(out_dir / "legmap.json", json.dumps(result, indent=2))
+    write_json(out_dir / "legmap.json", result)
     plot_legmap(free, stuck, fits, stance, out_dir / "fig_legmap.png")
     return result
 

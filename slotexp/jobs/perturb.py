@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..atomic import write_csv, write_text
+from ..atomic import write_csv, write_json, write_text
 from ..config import SlotConfig, check_run_length, check_scenario, choice_field, num_field
 from ..errors import ConfigError
 from ..metrics import cycle_mean_cost
@@ -111,7 +110,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> list[RunData]:
     result = {"table1": table.to_dict(orient="records"), "cost_average": exp.cost_average, "solver_timing": timing}
     if exp.cost_average != "step":
         result["table1_step_cost"] = step_table.to_dict(orient="records")
-    write_text(out_dir / "metrics.json", json.dumps(result, indent=2, default=float))
+    write_json(out_dir / "metrics.json", result)
     return runs
 
 

@@ -13,14 +13,13 @@ per cycle) and a GIF per gait. A Hydra multirun over model options compares them
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pandas as pd
 
-from ..atomic import write_csv, write_text
+from ..atomic import write_csv, write_json, write_text
 from ..config import ConfigError, ScheduleConfig, SlotConfig, check_run_length, check_schedule_ticks, num_field
 from ..locomotion.schedules import cycle_s, gait_metrics, with_profile_velocity, wrap_deg
 from ..runlog import find_logs, load_run
@@ -132,8 +131,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> pd.DataFrame:
     table = pd.DataFrame(rows)
     write_csv(table, out_dir / "replay.csv", index=False)
     write_text(out_dir / "replay.md", replay_markdown(table))
-    finite = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()} for r in rows]
-    write_text(out_dir / "metrics.json", json.dumps({r["gait"]: r for r in finite}, indent=2, allow_nan=False))
+    write_json(out_dir / "metrics.json", {r["gait"]: r for r in rows})
     from ..figures.replay import plot_replay
 
     plot_replay(table, out_dir / "fig_replay.png")

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..atomic import write_text
+from ..atomic import write_json
 from ..config import SlotConfig, check_run_length, check_scenario, num_field
 from ..metrics import rmse
 from ..runlog import RunData, find_logs, load_run
@@ -142,7 +141,7 @@ def write_report(
 
     run = load_run(find_logs(out_dir)[0])
     result = metrics(run, velocity, drift_distance, measure_from_s, yaw_rate)
-    write_text(out_dir / "metrics.json", json.dumps(result, indent=2))
+    write_json(out_dir / "metrics.json", result)
     plot_com(run, out_dir / "fig4_com.png")
     plot_path(run, legs, out_dir / "fig6_path.png")
     from ..figures.animation import animate_log

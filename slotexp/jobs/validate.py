@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..atomic import write_csv, write_text
+from ..atomic import write_csv, write_json, write_text
 from ..compare import Alignment, Trajectory, align, compare, load_marker_csv, trajectory_from_frame
 from ..config import SlotConfig, check_scenario, choice_field, num_field
 from ..errors import ConfigError, UserError
@@ -79,7 +79,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         "offset_s": exp.offset_s,
         "markers": exp.markers,
     }
-    write_text(out_dir / INPUTS_FILE, json.dumps(inputs, indent=2))
+    write_json(out_dir / INPUTS_FILE, inputs)
     rebuild(out_dir)
 
 
@@ -120,18 +120,14 @@ def report(
         ref = {m: ref[m] for m in markers}
         cand = {m: cand[m] for m in markers}
     plot_overlay(times, ref, cand, out_dir / "fig_validate.png", title="candidate vs reference")
-    write_text(
+    write_json(
         out_dir / "metrics.json",
-        json.dumps(
-            {
-                "reference": reference_name,
-                "candidate": candidate_name,
-                "alignment": {"mode": alignment.mode, "offset_s": alignment.offset_s},
-                "rows": table.to_dict(orient="records"),
-            },
-            indent=2,
-            default=float,
-        ),
+        {
+            "reference": reference_name,
+            "candidate": candidate_name,
+            "alignment": {"mode": alignment.mode, "offset_s": alignment.offset_s},
+            "rows": table.to_dict(orient="records"),
+        },
     )
 
 
