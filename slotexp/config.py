@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -576,6 +577,24 @@ def validate(cfg: SlotConfig) -> SlotConfig:
     if len(leg.names) != 4:
         raise ConfigError(f"robot.leg.names has {len(leg.names)} entries: SLOT has exactly 4 legs")
     _check_gait(cfg.gait)
+    check_file_name(cfg.gait.name, "gait.name")
+    for key, scenario in cfg.scenarios.items():
+        check_file_name(key, f"the scenario {key!r}")
+        check_file_name(scenario.name, f"scenarios.{key}.name")
+    for key in cfg.schedules:
+        check_file_name(key, f"the schedule {key!r}")
+    for field_name in ("scenarios", "schedules"):  # an experiment's lists of them name its logs, one each
+        items = [str(item) for item in getattr(cfg.experiment, field_name, None) or []]
+        for item in items:
+            check_file_name(item, f"experiment.{field_name}")
+        # a scenario's log is named by its name: field, a schedule's by its key
+        logs = [cfg.scenarios[i].name or i if field_name == "scenarios" and i in cfg.scenarios else i for i in items]
+        twice = sorted({log for log in logs if logs.count(log) > 1})
+        if twice:
+            raise ConfigError(
+                f"experiment.{field_name} names {', '.join(twice)} more than once (as a name or through its "
+                "name: field): each writes one log, so list each once"
+            )
     g = cfg.gait
     if g.tendon_ramp + g.tendon_hold + g.tendon_decay > 1.0 + 1e-9:
         raise ConfigError(
@@ -629,6 +648,19 @@ def validate(cfg: SlotConfig) -> SlotConfig:
     if check is not None:
         check(cfg)
     return cfg
+
+
+FILE_NAME = re.compile(r"[A-Za-z0-9_.-]{1,100}")
+
+
+def check_file_name(name: str, what: str) -> None:
+    """A name that becomes a file or directory name (a log, a GIF): letters, digits, ``_ . -``, at most 100
+    characters, and never ``.`` or ``..``, so nothing is ever written outside the run's directory."""
+    if not FILE_NAME.fullmatch(name) or set(name) == {"."}:
+        shown = name if len(name) <= 40 else name[:37] + "..."
+        raise ConfigError(
+            f"{what}: {shown!r} cannot name a file: use 1-100 letters, digits, '_', '.' or '-' (no '/', no '..')"
+        )
 
 
 def check_schedule(cfg: SlotConfig, name: str, schedule: ScheduleConfig) -> None:

@@ -180,6 +180,14 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     ([""], ["empty"]),
     (["experiment.scenario=bäseline"], ["must be quoted", "experiment.scenario='bäseline'"]),
     (["sim.dt=1e-9"], ["sim.dt", ">= 1e-06"]),
+    # names that become file names never leave the run directory, and each names one log
+    (["experiment=perturb", "experiment.scenarios=[../../x]"], ["experiment.scenarios", "'../../x'", "no '..'"]),
+    (["gait.name=../x"], ["gait.name", "'../x'", "cannot name a file"]),
+    (["gait.name=a/b"], ["gait.name", "'a/b'"]),
+    (["gait.name=" + "a" * 300], ["gait.name", "1-100 letters"]),
+    (["experiment=perturb", "experiment.scenarios=[baseline,baseline]"], ["baseline more than once"]),
+    (["experiment=perturb", "experiment.scenarios=[baseline,roll]", "scenarios.roll.name=baseline"], ["baseline"]),
+    (["experiment=simulate", "experiment.measure_from_s=100"], ["experiment.measure_from_s = 100", "lower it"]),
 ]
 
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..atomic import write_json
 from ..config import SlotConfig, check_run_length, check_scenario, num_field
+from ..errors import ConfigError
 from ..metrics import rmse
 from ..runlog import RunData, find_logs, load_run
 from . import EXPERIMENTS, Experiment
@@ -28,6 +29,11 @@ class SimulateExperiment:
     def check(self, cfg: SlotConfig) -> None:
         check_run_length(cfg, self.duration)
         check_scenario(cfg, self.scenario, "experiment.scenario names")
+        if self.measure_from_s >= self.duration:
+            raise ConfigError(
+                f"experiment.measure_from_s = {self.measure_from_s:g} s leaves nothing of experiment.duration = "
+                f"{self.duration:g} s to measure speed and heading over: lower it"
+            )
 
 
 def lateral_drift(xy: np.ndarray, direction: np.ndarray, distance: float) -> tuple[float, float]:
