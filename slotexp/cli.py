@@ -322,11 +322,16 @@ def _hydra_task(cfg) -> None:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
+    from .controllers._gait import envelope_warning
     from .jobs import run_experiment
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
-        run_experiment(load_config(cfg), out_dir, OmegaConf.to_yaml(cfg))
+        checked = load_config(cfg)
+        warning = envelope_warning(checked)
+        if warning is not None:
+            typer.echo(f"warning: {warning}", err=True)
+        run_experiment(checked, out_dir, OmegaConf.to_yaml(cfg))
     except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except KeyboardInterrupt as exc:

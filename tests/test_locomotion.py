@@ -303,3 +303,17 @@ def test_the_attitude_trim_lowers_the_high_corners_at_its_rate_and_holds_within_
     left = robot.corners_body[:, 1] > 0
     np.testing.assert_allclose(ctrl.trim[left], -MAX_TRIM_DEG)
     np.testing.assert_allclose(ctrl.trim[~left], MAX_TRIM_DEG)
+
+
+def test_a_command_beyond_the_gait_librarys_envelope_gets_one_warning_naming_it_and_a_reachable_override():
+    from slotexp.controllers._gait import envelope_warning
+
+    fast = load("plant=cosserat", "experiment=simulate")  # the paper's 0.08 m/s walk
+    message = envelope_warning(fast)
+    top = fast.controller.library["walk"].primitives  # the library's measured forward speed is in the message
+    assert message is not None and "80.0 mm/s at 0 deg" in message and "gait.velocity=[" in message
+    assert any(f"{p.speed_mps * 1e3:.1f} mm/s" in message for p in top)
+    assert envelope_warning(load("plant=cosserat", "experiment=simulate", "gait.velocity=[0.015,0]")) is None
+    spin = load("plant=cosserat", "experiment=simulate", "gait.velocity=[0,0]", "gait.yaw_rate=1.0")
+    assert "gait.yaw_rate = 1 rad/s" in envelope_warning(spin)
+    assert envelope_warning(load("experiment=simulate")) is None  # the ideal plant has no library to outrun

@@ -94,3 +94,32 @@ class GaitController(MpcController):
     def adjust(self, x: np.ndarray, feet: np.ndarray, forces: np.ndarray, solution) -> np.ndarray:
         """Tendon angle offsets (4,) on top of the gait, and the command's update; none here."""
         return np.zeros(4)
+
+
+def envelope_warning(cfg: SlotConfig) -> str | None:
+    """One line when a library gait is asked for more than the gait library measured (None inside it): the
+    robot then walks at the envelope's speed, and a run that finishes short should not finish silently."""
+    from . import CONTROLLERS
+
+    library = cfg.controller.library
+    if not issubclass(CONTROLLERS.get(cfg.controller.name), GaitController) or cfg.gait.style not in library:
+        return None
+    lib = GaitLibrary.from_config(library[cfg.gait.style], 0.0, cfg.robot.leg.tendon_max_deg)
+    v = np.asarray(cfg.gait.velocity, float)
+    speed = float(np.hypot(*v))
+    heading = float(np.degrees(np.arctan2(v[1], v[0])))
+    top = lib.max_speed(heading)
+    if speed > top * 1.001:
+        return (
+            f"gait.velocity = [{v[0]:g}, {v[1]:g}] m/s asks for {speed * 1e3:.1f} mm/s at {heading:.0f} deg, beyond "
+            f"what the '{cfg.gait.style}' gait library measured there ({top * 1e3:.1f} mm/s, conf/library/): the "
+            f"robot walks at most that; ask for less, e.g. gait.velocity=[{0.8 * top * v[0] / speed:.3f},"
+            f"{0.8 * top * v[1] / speed:.3f}]"
+        )
+    yaw = abs(float(np.degrees(cfg.gait.yaw_rate)))
+    if yaw > lib.max_yaw_rate_dps * 1.001:
+        return (
+            f"gait.yaw_rate = {cfg.gait.yaw_rate:g} rad/s ({yaw:.2f} deg/s) is beyond what the '{cfg.gait.style}' "
+            f"gait library turns ({lib.max_yaw_rate_dps:.2f} deg/s, conf/library/): the robot turns at most that"
+        )
+    return None
