@@ -348,21 +348,37 @@ def _hydra_task(cfg) -> None:
     typer.echo(str(out_dir))
 
 
+def _run_help() -> str:
+    """``slot run --help``, its lists of choices read from the config tree itself (they follow the files)."""
+    groups = sorted(p for p in CONF_DIR.iterdir() if p.is_dir() and not p.name.startswith(("_", ".")))
+
+    def names(group: Path) -> str:
+        return ", ".join(sorted(p.stem for p in group.glob("*.yaml")))
+
+    keyed = {  # groups composed under a key of their own, and an override that reaches into one
+        "scenario": "scenarios.<name> (e.g. scenarios.roll.offset.roll=0.2)",
+        "schedule": "schedules.<name> (e.g. schedules.forward.step_s=0.5)",
+    }
+    hardware_only = ("hardware", "odometry")  # slot hardware's groups
+    lines = [f"{g.name}: {names(g)}" for g in groups if g.name not in keyed and g.name not in hardware_only]
+    lines += [f"{keyed[g.name]}: {names(g)}" for g in groups if g.name in keyed]
+    return (
+        "Run an experiment. Arguments are Hydra overrides, e.g. experiment=perturb gait=walk solver=scs.\n\n"
+        + "Config groups and their choices (slotexp/conf/):\n\n"
+        + "\n\n".join(lines)
+        + "\n\ncontroller=schedule plays one of the schedules (controller.schedule=<name>). Use -m for a "
+        "multirun sweep (a,b,c values), --cfg job to print the composed config, hydra.run.dir=DIR to choose "
+        "the output directory, live=true to stream the run to Foxglove as well (ws://127.0.0.1:8765; "
+        "live_port=N to change it)."
+    )
+
+
 @app.command(
-    context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": ["--help"]}
+    context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": ["--help"]},
+    help=_run_help(),
 )
 def run(ctx: typer.Context) -> None:
-    """Run an experiment. Arguments are Hydra overrides, e.g. experiment=perturb gait=walk solver=scs.
-
-    Groups: experiment (perturb, simulate, validate, leg, calibrate, replay), gait (walk,
-    crawl, omni60), solver, plant (ideal, cosserat), actuation (paper, calibrated),
-    robot (slot), the scenarios under scenarios.<name> (baseline, roll, pitch,
-    height, velocity, combined, noise), and the robot's own gaits under
-    schedules.<name> (forward, crawl_forward, ...; controller=schedule plays one).
-    Use -m for a multirun sweep (a,b,c values), --cfg job to print the composed
-    config, hydra.run.dir=DIR to choose the output directory, live=true to stream the
-    run to Foxglove as well (ws://127.0.0.1:8765; live_port=N to change it).
-    """
+    """Run an experiment (its help is built from the config tree: :func:`_run_help`)."""
     import hydra
 
     args = list(ctx.args)

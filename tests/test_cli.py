@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 
 from slotexp.record import read_log
 from slotexp.sweepstop import child_processes
-from tests.helpers import SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot
+from tests.helpers import CONF, SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot
 
 TABLE1_HEADER = ["scenario", "max_cost", "mean_cost", "final_cost", "settle_s", "infeasible_steps"]
 PERTURB_SCENARIOS = ["baseline", "height"]
@@ -270,6 +270,10 @@ def test_help(tmp_path: Path) -> None:
     text = plain(sub.stdout)
     assert "Usage: slot run" in text
     assert "overrides" in text and "-m" in text
+    # every choice of every group is listed, read from the config tree (a new file appears without an edit)
+    words = set(text.replace(",", " ").replace(":", " ").split())
+    for group in ("experiment", "gait", "plant", "robot", "solver", "controller", "scenario", "schedule"):
+        assert {p.stem for p in (CONF / group).glob("*.yaml")} <= words, group
     assert list(tmp_path.iterdir()) == []
 
 
