@@ -219,13 +219,25 @@ def precheck(
         if o.lstrip("+~").startswith("="):
             fail(f"{o!r} has no key: write key=value, e.g. mpc.horizon=10")
         key, _, value = o.partition("=")
+
+        def parses(text: str) -> bool:
+            try:
+                parser.parse_override(text)
+            except HydraException:
+                return False
+            return True
+
+        quoted = f"{key}='{value}'"  # a suggestion is only made when it parses itself
+        if not key.isascii() or not parses(f"{key}=0"):
+            fail(f"{o}: {key!r} is not a setting's name: keys are ASCII names such as mpc.horizon (slot run --help)")
         if not value.isascii() and not (value.startswith(("'", '"')) and value.endswith(value[0])):
-            quoted = f"{key}='{value}'"
-            fail(f'{o}: a value with non-ASCII characters must be quoted for Hydra: write "{quoted}"')
+            hint = f'write "{quoted}"' if parses(quoted) else "write it in ASCII"
+            fail(f"{o}: a value with non-ASCII characters must be quoted for Hydra: {hint}")
         try:  # one at a time, so that the message can name the one that does not parse
             every.append(parser.parse_override(o))
         except HydraException as exc:
-            fail(f"cannot parse override {o!r} ({str(exc).splitlines()[0]}): quote the value, e.g. \"{key}='{value}'\"")
+            hint = f'quote the value, e.g. "{quoted}"' if parses(quoted) else "check its brackets and quotes"
+            fail(f"cannot parse override {o!r} ({str(exc).splitlines()[0]}): {hint}")
     for p in every:
         if p.key_or_group.startswith("hydra") and p.is_sweep_override():
             fail(f"{p.input_line}: Hydra cannot sweep its own settings: give {p.key_or_group} one value")

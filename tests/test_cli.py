@@ -179,6 +179,7 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     (["-m", "gait=walk,crawl", "live=true"], ["live=true", "live_port=0"]),  # the jobs would share one port
     ([""], ["empty"]),
     (["experiment.scenario=bäseline"], ["must be quoted", "experiment.scenario='bäseline'"]),
+    (["mpç.horizon=3"], ["'mpç.horizon' is not a setting's name"]),
     (["sim.dt=1e-9"], ["sim.dt", ">= 1e-06"]),
     # names that become file names never leave the run directory, and each names one log
     (["experiment=perturb", "experiment.scenarios=[../../x]"], ["experiment.scenarios", "'../../x'", "no '..'"]),
@@ -197,6 +198,18 @@ def test_bad_override_is_one_line_error(tmp_path: Path, overrides: list[str], na
     assert_one_line_error(proc, *names)
     assert not run_dir.exists(), "a run directory was created for a rejected config"
     assert not (tmp_path / "experiments").exists()
+
+
+@pytest.mark.parametrize("bad", ["experiment.scenario=bäseline", "x=[1,2", "mpç.horizon=3", "gait=wälk"])
+def test_every_override_the_precheck_suggests_parses(tmp_path: Path, bad: str) -> None:
+    import re
+
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    proc = slot("run", bad, f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path, timeout=60)
+    line = assert_one_line_error(proc)
+    for suggestion in re.findall(r'"([^"]+=[^"]*)"', line):
+        OverridesParser.create().parse_override(suggestion)  # raises if the suggested fix does not parse
 
 
 def test_validate_missing_reference_path_is_one_line_error(tmp_path: Path) -> None:
