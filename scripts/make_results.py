@@ -246,7 +246,7 @@ RUNS = {
         "plant=cosserat",
         FITTED,
         "experiment.synthetic.truth=[0.4,100.0,1.2e7,25.0]",
-        "experiment.max_evals=160",
+        "experiment.max_evals=240",
     ],
     # The robot's held-out gaits (not in shared/data), played once, at the end, on the default model: the test.
     "replay_heldout": ["experiment=replay", "plant=cosserat", HELD_OUT, "experiment.gif=false"],

@@ -82,13 +82,13 @@ def test_identification_recovers_a_known_horn_zero_from_the_models_own_noisy_obs
     assert set(residuals["observation"]) == {
         "compass_deg",
         "distance_per_cycle_mm",
-        "track_rmse_x_mm",
-        "track_rmse_y_mm",
-        "track_rmse_z_mm",
+        "track_cycle_rms_x_mm",
+        "track_cycle_rms_y_mm",
+        "track_cycle_rms_z_mm",
     }
     assert fit["cost"] == pytest.approx(float((residuals["residual"] ** 2).sum()), rel=1e-4)  # CSV: 6 digits
     candidates = pd.read_csv(tmp_path / "candidates.csv")
-    assert len(candidates) == 17 and candidates["cost"].min() <= fit["cost"] + 1e-9  # the start, then 16
+    assert len(candidates) == 17 and candidates["cost"].min() <= fit["cost"] * (1 + 1e-5)  # the start, then 16
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["evaluations"] == 17
     assert_png(tmp_path / "fig_identify.png")
