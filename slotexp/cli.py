@@ -82,11 +82,15 @@ def check_output_dir(path: str | Path, what: str) -> None:
 
 
 def _check_hydra_dirs(overrides: list[str]) -> None:
-    """``hydra.run.dir`` / ``hydra.sweep.dir`` given on the command line: checked before Hydra starts."""
+    """``hydra.run.dir`` / ``hydra.sweep.dir`` and the launcher's job count given on the command line: checked
+    before Hydra starts."""
     for key in ("hydra.run.dir", "hydra.sweep.dir"):
         value = _override_value(overrides, key)
         if value is not None:
             check_output_dir(value, key)
+    jobs = _override_value(overrides, "hydra.launcher.n_jobs")
+    if jobs is not None and jobs.lstrip("-").isdigit() and int(jobs) == 0:
+        fail("hydra.launcher.n_jobs=0 runs no job: give a count of parallel jobs (1, 2, ...) or -1 for every core")
 
 
 def _override_value(overrides: list[str], key: str) -> str | None:
@@ -259,9 +263,18 @@ def precheck(
                     fail(f"unknown {group} {v!r}: choose one of {', '.join(options)} (files in conf/{group}/)")
         choices.append([_override_text(o, v) if not o.is_delete() else o.input_line for v in values])
     register_schemas()
+    subdir_setting = next((o.input_line for o in every if o.key_or_group == "hydra.sweep.subdir"), None)
+    named_by_overrides = subdir_setting is None or "override_dirname" in subdir_setting
     combos = itertools.islice(itertools.product(*choices), MAX_PRECHECK)
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        for combo in combos:
+        for number, combo in enumerate(combos):
+            # a sweep's job directory is <number>_<its overrides, sorted and joined> (Hydra's override_dirname)
+            subdir = f"{number}_" + ",".join(sorted(combo))
+            if multirun and named_by_overrides and len(subdir.encode()) > 255:
+                fail(
+                    f"a sweep job's directory name would be {len(subdir.encode())} bytes, over the file system's 255 "
+                    "(the job's overrides joined): shorten the values, or add 'hydra.sweep.subdir=${hydra.job.num}'"
+                )
             try:
                 cfg = compose(config_name, overrides=list(combo))
             except (HydraException, OmegaConfBaseException) as exc:

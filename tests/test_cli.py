@@ -180,6 +180,15 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     ([""], ["empty"]),
     (["experiment.scenario=bäseline"], ["must be quoted", "experiment.scenario='bäseline'"]),
     (["mpç.horizon=3"], ["'mpç.horizon' is not a setting's name"]),
+    (["-m", "hydra.launcher.n_jobs=0", "experiment=simulate"], ["hydra.launcher.n_jobs=0", "-1 for every core"]),
+    (
+        ["-m", "experiment=simulate", "gait.name=" + "a" * 99, "scenarios.baseline.name=" + "b" * 99, "mpc.horizon=10"],
+        ["over the file system's 255", "hydra.sweep.subdir"],
+    ),
+    (
+        ["experiment=gait_search", "plant=cosserat", "experiment.verify_duration=0.5", "experiment.settle=1"],
+        ["experiment.verify_duration = 0.5", "raise verify_duration"],
+    ),
     (["sim.dt=1e-9"], ["sim.dt", ">= 1e-06"]),
     # names that become file names never leave the run directory, and each names one log
     (["experiment=perturb", "experiment.scenarios=[../../x]"], ["experiment.scenarios", "'../../x'", "no '..'"]),

@@ -85,6 +85,11 @@ class GaitSearchExperiment:
                 f"experiment.settle = {self.settle:g} s leaves nothing of experiment.duration = "
                 f"{self.duration:g} s to measure: lower it"
             )
+        if self.settle >= self.verify_duration:
+            raise ConfigError(
+                f"experiment.settle = {self.settle:g} s leaves nothing of experiment.verify_duration = "
+                f"{self.verify_duration:g} s to measure the library's gaits over: raise verify_duration"
+            )
         self.parallel.check()
 
 
