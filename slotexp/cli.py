@@ -348,12 +348,12 @@ def _hydra_task(cfg) -> None:
     from omegaconf import OmegaConf
 
     from .controllers._gait import envelope_warning
-    from .jobs import run_experiment
+    from .jobs import EXPERIMENTS, run_experiment
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         checked = load_config(cfg)
-        warning = envelope_warning(checked)
+        warning = envelope_warning(checked) if EXPERIMENTS.get(checked.experiment.name).walks_gait else None
         if warning is not None:
             typer.echo(f"warning: {warning}", err=True)
         run_experiment(checked, out_dir, OmegaConf.to_yaml(cfg))

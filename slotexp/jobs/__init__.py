@@ -25,6 +25,7 @@ class Experiment:
     report: Callable[[Path, SlotConfig], object]  # rebuild tables and figures from the run's logs
     root_schema: type = SlotConfig  # the whole config's schema (hardware runs differ)
     command: str = "slot run"  # the command that runs it
+    walks_gait: bool = False  # it drives the robot with the gait command (gait.velocity, gait.yaw_rate)
 
 
 EXPERIMENTS: Registry[Experiment] = Registry(__name__, "experiment")

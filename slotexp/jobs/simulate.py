@@ -163,4 +163,4 @@ def write_report(
     return result
 
 
-EXPERIMENTS.add("simulate", Experiment(SimulateExperiment, run, report))
+EXPERIMENTS.add("simulate", Experiment(SimulateExperiment, run, report, walks_gait=True))

@@ -131,4 +131,4 @@ def report(
     )
 
 
-EXPERIMENTS.add("validate", Experiment(ValidateExperiment, run, rebuild))
+EXPERIMENTS.add("validate", Experiment(ValidateExperiment, run, rebuild, walks_gait=True))
