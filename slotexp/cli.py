@@ -14,6 +14,7 @@ import os
 import signal
 import sys
 import tempfile
+import time
 import types
 from pathlib import Path
 from typing import Any
@@ -353,10 +354,15 @@ def _hydra_task(cfg) -> None:
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         checked = load_config(cfg)
-        warning = envelope_warning(checked) if EXPERIMENTS.get(checked.experiment.name).walks_gait else None
+        experiment = EXPERIMENTS.get(checked.experiment.name)
+        warning = envelope_warning(checked) if experiment.walks_gait else None
         if warning is not None:
             typer.echo(f"warning: {warning}", err=True)
+        started = time.monotonic()
         run_experiment(checked, out_dir, OmegaConf.to_yaml(cfg))
+        if experiment.summary is not None and (out_dir / experiment.summary).is_file():
+            typer.echo((out_dir / experiment.summary).read_text().rstrip())
+        typer.echo(f"done in {time.monotonic() - started:.0f} s; outputs in:")
     except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except KeyboardInterrupt as exc:

@@ -727,3 +727,22 @@ def test_figures_and_summarize_say_which_logs_are_truncated(tmp_path: Path) -> N
     assert f"warning: {job.name}: logs incomplete: walk.mcap" in summary.stderr
     table = pd.read_csv(sweep / "summary.csv")
     assert list(table["logs"]) == ["incomplete: walk.mcap", "complete"]
+
+
+def test_perturb_ends_by_printing_table_i_and_its_time_before_the_output_directory(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    proc = ok(
+        slot(
+            "run",
+            "experiment=perturb",
+            "experiment.duration=0.5",
+            "experiment.scenarios=[baseline,roll]",
+            f"hydra.run.dir={run_dir}",
+            cwd=tmp_path,
+        )
+    )
+    lines = proc.stdout.strip().splitlines()
+    assert lines[-1] == str(run_dir) and lines[-2].startswith("done in ")
+    table = (run_dir / "table1.md").read_text().rstrip()
+    assert table in proc.stdout and "| baseline |" in table and "| roll |" in table
+    assert "PillowWriter" not in proc.stdout + proc.stderr

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +71,8 @@ def animate(
     anim = FuncAnimation(fig, draw, frames=len(t), blit=False)
     path = Path(path)
     with replacing(path) as tmp:  # a stopped save leaves the previous GIF or none, never a torn one
+        # matplotlib announces every save at INFO, which Hydra's logging prints: one line of noise per GIF
+        logging.getLogger("matplotlib.animation").setLevel(logging.WARNING)
         anim.save(tmp, writer=PillowWriter(fps=fps), dpi=80)
     return path
 

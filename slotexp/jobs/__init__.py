@@ -26,6 +26,7 @@ class Experiment:
     root_schema: type = SlotConfig  # the whole config's schema (hardware runs differ)
     command: str = "slot run"  # the command that runs it
     walks_gait: bool = False  # it drives the robot with the gait command (gait.velocity, gait.yaw_rate)
+    summary: str | None = None  # an output printed when the run ends (a markdown table), before its directory
 
 
 EXPERIMENTS: Registry[Experiment] = Registry(__name__, "experiment")

@@ -114,4 +114,4 @@ def report(out_dir: Path, cfg: SlotConfig) -> list[RunData]:
     return runs
 
 
-EXPERIMENTS.add("perturb", Experiment(PerturbExperiment, run, report, walks_gait=True))
+EXPERIMENTS.add("perturb", Experiment(PerturbExperiment, run, report, walks_gait=True, summary="table1.md"))

@@ -156,4 +156,4 @@ def replay_markdown(table: pd.DataFrame) -> str:
     return head + "\n".join(lines) + "\n"
 
 
-EXPERIMENTS.add("replay", Experiment(ReplayExperiment, run, report))
+EXPERIMENTS.add("replay", Experiment(ReplayExperiment, run, report, summary="replay.md"))
