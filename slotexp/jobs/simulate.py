@@ -25,6 +25,7 @@ class SimulateExperiment:
     scenario: str = "baseline"
     drift_distance: float = num_field(0.8, lo=0.0, lo_open=True, unit="m")
     measure_from_s: float = num_field(2.0, lo=0.0, unit="s")  # speed and heading are measured after this
+    gif: bool = True  # the soft-leg walk's animation (about 13 s of the report's time): false skips it
 
     def check(self, cfg: SlotConfig) -> None:
         check_run_length(cfg, self.duration)
@@ -138,6 +139,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         list(cfg.robot.leg.names),
         measured_from(exp),
         yaw_rate=cfg.gait.yaw_rate,
+        gif=exp.gif,
     )
 
 
@@ -148,6 +150,7 @@ def write_report(
     legs: list[str],
     measure_from_s: float = 2.0,
     yaw_rate: float = 0.0,
+    gif: bool = True,
 ) -> dict:
     """:func:`report` with its settings given (hardware runs share it)."""
     from ..figures.simulate import plot_com, plot_path
@@ -157,9 +160,10 @@ def write_report(
     write_json(out_dir / "metrics.json", result)
     plot_com(run, out_dir / "fig4_com.png")
     plot_path(run, legs, out_dir / "fig6_path.png")
-    from ..figures.animation import animate_log
+    if gif:
+        from ..figures.animation import animate_log
 
-    animate_log(run.path, out_dir / f"{run.run.get('gait', 'run')}.gif")  # soft-leg runs only
+        animate_log(run.path, out_dir / f"{run.run.get('gait', 'run')}.gif")  # soft-leg runs only
     return result
 
 
