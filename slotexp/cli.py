@@ -202,6 +202,14 @@ def _override_text(o, value: str) -> str:
     return f"{prefix}{key}={value}"
 
 
+def yaml_error_line(exc: Exception) -> str:
+    """One line for a YAML file that does not parse: which file, where, and what."""
+    mark = getattr(exc, "problem_mark", None)
+    where = f"{mark.name}, line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "a config file"
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    return f"{where}: not valid YAML ({problem}): fix the file (or restore it from git)"
+
+
 def precheck(
     overrides: list[str],
     multirun: bool,
@@ -211,6 +219,7 @@ def precheck(
     root: type | None = None,
 ) -> None:
     """Compose and validate every combination the run would launch; fail with one line."""
+    import yaml
     from hydra import compose, initialize_config_dir
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import HydraException
@@ -280,6 +289,8 @@ def precheck(
                 cfg = compose(config_name, overrides=list(combo))
             except (HydraException, OmegaConfBaseException) as exc:
                 fail(_compose_message(exc))
+            except yaml.YAMLError as exc:  # a config file that is not YAML (edited by hand, truncated)
+                fail(yaml_error_line(exc))
             try:
                 loaded = (loader or load_config)(cfg)
             except UserError as exc:

@@ -746,3 +746,18 @@ def test_perturb_ends_by_printing_table_i_and_its_time_before_the_output_directo
     table = (run_dir / "table1.md").read_text().rstrip()
     assert table in proc.stdout and "| baseline |" in table and "| roll |" in table
     assert "PillowWriter" not in proc.stdout + proc.stderr
+
+
+def test_a_config_file_that_is_not_yaml_is_named_in_one_line(tmp_path: Path) -> None:
+    import yaml
+
+    from slotexp.cli import yaml_error_line
+
+    bad = tmp_path / "default.yaml"
+    bad.write_text("walk:\n  frequency_hz: [1, 2\n")
+    try:
+        with open(bad) as f:
+            yaml.safe_load(f)
+    except yaml.YAMLError as exc:
+        line = yaml_error_line(exc)
+    assert "\n" not in line and str(bad) in line and "line 3" in line and "not valid YAML" in line
