@@ -623,9 +623,9 @@ def validate(cfg: SlotConfig) -> SlotConfig:
             f"(use robot=mini_cheetah or robot=go1)"
         )
     if cfg.robot.rigid.model:
-        from .rigid import model_path  # the file must exist before any work starts
+        from .rigid.model import read_spec  # the file must exist and parse before any work starts
 
-        model_path(cfg.robot.rigid)
+        read_spec(cfg.robot.rigid)
     if cfg.mpc.f_min_stance > cfg.mpc.f_max:
         raise ConfigError(
             f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = {cfg.mpc.f_max:g} N: lower it"

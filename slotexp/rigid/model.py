@@ -28,9 +28,19 @@ from . import model_path
 JOINTS = ("hip", "thigh", "calf")
 
 
+def read_spec(cfg: RigidConfig) -> mujoco.MjSpec:
+    """The robot's MJCF as MuJoCo reads it; a file it cannot read is a ConfigError naming it."""
+    path = model_path(cfg)
+    try:
+        return mujoco.MjSpec.from_file(str(path))
+    except ValueError as exc:  # MuJoCo's parser: not XML, or XML that is not MJCF
+        first = " ".join(str(exc).split())[:160]
+        raise ConfigError(f"robot.rigid.model = {str(path)!r} is not a model MuJoCo can read ({first})") from None
+
+
 def load_model(cfg: RigidConfig, dt: float, gravity: float) -> mujoco.MjModel:
     """The robot on a flat floor, stepped at ``dt`` under ``gravity``."""
-    spec = mujoco.MjSpec.from_file(str(model_path(cfg)))
+    spec = read_spec(cfg)
     floor = spec.worldbody.add_geom()
     floor.name = "floor"
     floor.type = mujoco.mjtGeom.mjGEOM_PLANE
