@@ -46,6 +46,19 @@ class LegmapExperiment:
             raise ConfigError(f"experiment.root_heights = {self.root_heights}: give [lowest, highest] m")
         if not self.radial_forces[0] < 0.0 < self.radial_forces[1]:
             raise ConfigError(f"experiment.radial_forces = {self.radial_forces}: give [negative, positive] N around 0")
+        # a polynomial of degree d in a direction needs d + 1 distinct points along it, or it passes through them
+        # all (R^2 = 1) and says nothing between them
+        du, dv = self.degrees
+        for points, need, what in (
+            (self.angles, du + 1, "experiment.angles"),
+            (self.heights, dv + 1, "experiment.heights"),
+            (self.n_forces, dv + 1, "experiment.n_forces"),
+        ):
+            if points < need:
+                raise ConfigError(
+                    f"{what} = {points} points cannot fit experiment.degrees = {list(self.degrees)} (it needs "
+                    f"{need}): give more points or lower degrees"
+                )
 
 
 def _grids(cfg: SlotConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
