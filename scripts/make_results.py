@@ -298,8 +298,26 @@ def mean_walk_command() -> list[str]:
     ]
 
 
-# runs whose arguments come from an earlier run's log (made after it)
-DERIVED = {"simulate_cosserat_walk_open_loop_mean_command": mean_walk_command}
+def heldout_on_the_fit() -> list[str]:
+    """The held-out gaits on the model identified from the visible ones (results/identify_robot/fit.yaml)."""
+    import yaml
+
+    fit = yaml.safe_load((ROOT / "results" / "identify_robot" / "fit.yaml").read_text())["overrides"]
+    values = [f"{k}=[{','.join(f'{x:g}' for x in v)}]" if isinstance(v, list) else f"{k}={v:g}" for k, v in fit.items()]
+    return ["experiment=replay", "plant=cosserat", HELD_OUT, "experiment.gif=false", *values]
+
+
+def visible_on_the_fit() -> list[str]:
+    """The visible gaits on the identified model (what the fit did with what it saw)."""
+    return [a for a in heldout_on_the_fit() if not a.startswith("experiment.schedules=")]
+
+
+# runs whose arguments come from an earlier run's outputs (made after it)
+DERIVED = {
+    "simulate_cosserat_walk_open_loop_mean_command": mean_walk_command,
+    "replay_fit": visible_on_the_fit,
+    "replay_heldout_fit": heldout_on_the_fit,
+}
 
 # Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
 HEADINGS = range(0, 360, 45)  # deg, world frame (the robot starts at zero yaw)
