@@ -493,6 +493,9 @@ class SlotConfig:
     # also stream every step to Foxglove over a WebSocket server on localhost (slotexp/live.py)
     live: bool = False
     live_port: int = num_field(8765, lo=0, hi=65535, unit="(0: any free port)")
+    live_pace: float = num_field(1.0, lo=0.0, unit="x real time (0: as fast as it runs)")  # so a person can watch
+    live_wait_s: float = num_field(0.0, lo=0.0, unit="s")  # hold the first step until a viewer subscribes
+    live_linger_s: float = num_field(2.0, lo=0.0, unit="s")  # keep the view open after the run, for a viewer
 
 
 # --------------------------------------------------------------------------- checks

@@ -2,17 +2,24 @@
 
 :class:`LiveView` is a sink like the MCAP recorder (``write``, ``write_pose``,
 ``write_scene``) that publishes the same topics with the same schemas to a server on
-localhost (Foxglove: *Open connection* -> ``ws://localhost:<port>``). It never waits
-for a client: the SDK's ``log`` hands the message to the server's per-client queue
+localhost (Foxglove: *Open connection* -> ``ws://localhost:<port>``). Publishing never
+blocks on a client: the SDK's ``log`` hands the message to the server's per-client queue
 and returns, and with no client subscribed to a channel nothing is encoded at all
 (``has_sinks()`` is checked first), so a run without a viewer costs a few
 microseconds per topic. :class:`slotexp.simulation.Tee` sends one step to both the log and the view.
+
+A simulation runs many times faster than real time, so that a person can watch it the view
+paces it (``pace``: simulated seconds per wall second, 1 = real time, 0 = as fast as it
+goes), can hold the first step until a viewer subscribes (``wait_s``, at most that long),
+and keeps the server up ``linger_s`` after the last step before it closes.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import threading
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -41,11 +48,24 @@ HOST = "127.0.0.1"  # localhost only: the view is for the machine running the lo
 class LiveView:
     """A Foxglove WebSocket server and one channel per topic, created on the topic's first message."""
 
-    def __init__(self, port: int = DEFAULT_PORT, host: str = HOST, name: str = "slotexp") -> None:
+    def __init__(
+        self,
+        port: int = DEFAULT_PORT,
+        host: str = HOST,
+        name: str = "slotexp",
+        pace: float = 0.0,
+        wait_s: float = 0.0,
+        linger_s: float = 0.0,
+    ) -> None:
         logging.getLogger("foxglove").setLevel(logging.WARNING)  # the server's start/stop INFO lines: noise on stderr
         self._context = foxglove.Context()
+        self.pace, self.wait_s, self.linger_s = float(pace), float(wait_s), float(linger_s)
+        self.subscribed = threading.Event()  # a viewer subscribed to a channel
+        self._clock: tuple[float, float] | None = None  # (simulated, wall) time of the first paced step
         try:
-            self._server = foxglove.start_server(name=name, host=host, port=int(port), context=self._context)
+            self._server = foxglove.start_server(
+                name=name, host=host, port=int(port), context=self._context, server_listener=_Listener(self.subscribed)
+            )
         except RuntimeError as exc:  # the SDK reports a busy port as FoxgloveError (a RuntimeError)
             raise ConfigError(
                 f"live view: cannot listen on {host}:{port} ({str(exc).splitlines()[0]}): choose another live_port"
@@ -88,8 +108,22 @@ class LiveView:
         """Every one of ``topics`` advertised and nobody subscribed: nothing to encode."""
         return all(c is not None and not c.has_sinks() for c in map(self._channels.get, topics))
 
+    def _keep_time(self, t: float) -> None:
+        """Once per step: hold the first step for a viewer (``wait_s``), then keep simulated time ``pace``
+        times wall time."""
+        if self._clock is None:
+            if self.wait_s > 0:
+                self.subscribed.wait(self.wait_s)
+            self._clock = (t, time.monotonic())
+            return
+        if self.pace > 0:
+            ahead = self._clock[1] + (t - self._clock[0]) / self.pace - time.monotonic()
+            if ahead > 0:
+                time.sleep(ahead)
+
     def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None:
-        """Publish the pose and the transform, as the log writes them."""
+        """Publish the pose and the transform, as the log writes them (and keep the view's time)."""
+        self._keep_time(t)
         if self._idle((POSE_TOPIC, TRANSFORMS_TOPIC)):
             return
         pose, p, q = pose_message(t, position, quaternion_wxyz)
@@ -114,7 +148,10 @@ class LiveView:
             self.write_encoded(topic, frame.t, data)
 
     def close(self) -> None:
-        """Stop the server (clients are disconnected) and close the channels."""
+        """Stop the server (clients are disconnected) and close the channels, ``linger_s`` after the last step
+        when a viewer is watching."""
+        if self.linger_s > 0 and self.subscribed.is_set():
+            time.sleep(self.linger_s)
         for chan in self._channels.values():
             chan.close()
         self._server.stop()
@@ -126,8 +163,24 @@ class LiveView:
         self.close()
 
 
+class _Listener(foxglove.websocket.ServerListener):
+    """Tells the view when a viewer subscribes to anything."""
+
+    def __init__(self, subscribed: threading.Event) -> None:
+        self._subscribed = subscribed
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self._subscribed.set()
+
+
 def open_view(
-    enabled: bool, port: int, notify: Callable[[str], None], keep_going: bool = False
+    enabled: bool,
+    port: int,
+    notify: Callable[[str], None],
+    keep_going: bool = False,
+    pace: float = 0.0,
+    wait_s: float = 0.0,
+    linger_s: float = 0.0,
 ) -> contextlib.AbstractContextManager[LiveView | None]:
     """The live view a run asks for, to enter with ``with``: a started :class:`LiveView`, its address told
     through ``notify``, or None when not ``enabled``. A busy port is a :class:`ConfigError`, or with
@@ -135,13 +188,14 @@ def open_view(
     if not enabled:
         return contextlib.nullcontext(None)
     try:
-        view = LiveView(port)
+        view = LiveView(port, pace=pace, wait_s=wait_s, linger_s=linger_s)
     except ConfigError as exc:
         if not keep_going:
             raise
         notify(f"warning: {exc}; the run goes on without it (live=false silences this)")
         return contextlib.nullcontext(None)
-    notify(f"live: open ws://{view.host}:{view.port} in Foxglove (Open connection)")
+    waiting = f"; the run waits up to {wait_s:g} s for you" if wait_s > 0 else ""
+    notify(f"live: open ws://{view.host}:{view.port} in Foxglove (Open connection){waiting}")
     return view
 
 

@@ -11,6 +11,7 @@ import base64
 import json
 import struct
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -330,3 +331,40 @@ def test_shipped_layout_is_the_built_one_and_plots_only_what_a_run_logs(soft_log
     assert '"panelType": "ThreeDee"' in panels and '"/scene"' in panels
     bad = slot("layout", tmp_path, cwd=tmp_path)
     assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "Traceback" not in bad.stderr
+
+
+def test_the_live_view_waits_for_a_viewer_then_paces_the_run_and_lingers() -> None:
+    # A simulation runs far faster than real time: the view holds the first step until a viewer subscribes
+    # (wait_s), then keeps simulated time at `pace` times wall time, and stays open linger_s at the end.
+    steps, dt, pace = 21, 0.05, 4.0  # 1 s simulated: 0.25 s of wall time at pace 4
+    done: dict[str, float] = {}
+    with LiveView(port=0, pace=pace, wait_s=30.0, linger_s=0.5) as view:
+        view.write("/cost", 0.0, {"stage": 0.5})  # the channel a viewer can subscribe to
+
+        def publish() -> None:
+            for k in range(steps):
+                view.write("/cost", k * dt, {"stage": 0.5})
+                view.write_pose(k * dt, [0, 0, 0.04], [1, 0, 0, 0])
+            done["t"] = time.monotonic()
+
+        publisher = threading.Thread(target=publish, daemon=True)
+        publisher.start()
+        time.sleep(0.5)
+        assert publisher.is_alive() and not done, "the run went on before anyone watched"
+        with connect(
+            f"ws://127.0.0.1:{view.port}",
+            subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
+            open_timeout=10,
+            close_timeout=0.5,  # the server lets a client's close handshake time out; nothing to wait for
+        ) as ws:
+            channels: dict[str, dict] = {}
+            while "/cost" not in channels:
+                msg = ws.recv(timeout=10)
+                if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
+                    channels.update({c["topic"]: c for c in json.loads(msg)["channels"]})
+            started = time.monotonic()
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channels["/cost"]["id"]}]}))
+            publisher.join(timeout=30)
+            assert done["t"] - started >= (steps - 1) * dt / pace * 0.9  # paced, not flat out
+        closing = time.monotonic()
+    assert time.monotonic() - closing >= 0.45  # it lingered for the viewer

@@ -50,7 +50,14 @@ def open_live(cfg: SlotConfig) -> contextlib.AbstractContextManager[Any]:
     """The live view ``cfg.live`` asks for (a started server, announced on stderr), or a no-op context."""
     from ..live import open_view
 
-    return open_view(cfg.live, cfg.live_port, lambda line: print(line, file=sys.stderr))
+    return open_view(
+        cfg.live,
+        cfg.live_port,
+        lambda line: print(line, file=sys.stderr),
+        pace=cfg.live_pace,
+        wait_s=cfg.live_wait_s,
+        linger_s=cfg.live_linger_s,
+    )
 
 
 def run_logged(
