@@ -40,6 +40,7 @@ SMALL = (
     "experiment.popsize=4",
     "experiment.max_evals=16",
     "experiment.sigma0=0.3",
+    "experiment.initial_design=0",  # the search from the config's values alone
 )
 
 
@@ -132,3 +133,16 @@ def _power(task: tuple[int, float]) -> float:
 def test_bad_identification_settings_get_one_line(tmp_path: Path, override: str, names: list[str]):
     args = ["plant=cosserat", "experiment=identify", override]
     assert_one_line_error(slot("run", *args, f"hydra.run.dir={tmp_path}", cwd=tmp_path), *names)
+
+
+def test_an_initial_design_is_evaluated_first_and_the_search_starts_from_its_best(tmp_path: Path):
+    cfg = load(*SMALL, "experiment.max_evals=4", "experiment.initial_design=5", "experiment.parallel.workers=1")
+    run(cfg, tmp_path, "{}")
+    candidates = pd.read_csv(tmp_path / "candidates.csv")
+    first = candidates[candidates["generation"] == 0]
+    assert len(first) == 6 and first.iloc[0]["robot.servo.horn_zero_deg"] == 120.0  # the config's, then 5 points
+    design = np.sort(first.iloc[1:]["robot.servo.horn_zero_deg"].to_numpy())
+    assert all(100.0 + 6.0 * i <= d <= 100.0 + 6.0 * (i + 1) for i, d in enumerate(design))  # one per fifth
+    best = first.loc[first["cost"].idxmin()]
+    assert candidates.iloc[6]["robot.servo.horn_zero_deg"] == pytest.approx(best["robot.servo.horn_zero_deg"], rel=1e-5)
+    assert len(candidates) == 6 + 1 + 4  # the design with the start, the search's start, then 4

@@ -102,6 +102,9 @@ class IdentifyExperiment:
     max_evals: int = num_field(120, lo=2, hi=100000, unit="candidates")
     popsize: int = num_field(8, lo=2, hi=1000, unit="")
     sigma0: float = num_field(0.25, lo=0.0, lo_open=True, hi=1.0, unit="of each range")
+    # Latin-hypercube points over the ranges evaluated first; the search starts from the best of them and the
+    # config's own values (a fit from the config alone can settle in a local minimum: results/README.md)
+    initial_design: int = num_field(16, lo=0, hi=10000, unit="candidates")
     seed: int = num_field(1, lo=0, unit="")
     parallel: ParallelConfig = field(default_factory=ParallelConfig)
     synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
@@ -425,7 +428,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         # every core: the engine's processes, each batch's robots on the cores left to it
         local = exp.parallel.engine == "processes" or exp.parallel.address is None
         threads = max(1, (os.cpu_count() or 1) // engine.workers) if local else 0
-        task = bar.add_task("identify", total=exp.max_evals + 2)
+        task = bar.add_task("identify", total=exp.initial_design + exp.max_evals + 2)
         written = 0
         generation = 0
 
@@ -453,6 +456,12 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
             bar.advance(task, len(us))
             return costs
 
+        if exp.initial_design > 0:  # the start and a space-filling design, one batch; the best is the start
+            from scipy.stats import qmc
+
+            design = qmc.LatinHypercube(d=k, seed=exp.seed).random(exp.initial_design)
+            points = [x0] + [np.concatenate([u, x0[k:]]) for u in design]
+            x0 = points[int(np.argmin(evaluate_generation(points)))]
         _, best_u = search(
             evaluate_generation,
             x0,
