@@ -42,14 +42,14 @@ import pandas as pd
 import yaml
 
 from ..atomic import write_csv, write_json, write_text
-from ..config import SlotConfig, check_schedule_ticks, num_field
+from ..config import SlotConfig, num_field
 from ..errors import ConfigError, UserError
 from ..locomotion.schedules import cycle_s, gait_metrics, play, with_profile_velocity, wrap_deg
 from ..parallel import ParallelConfig, pool
 from ..record import Log, Recorder, read_log
 from . import EXPERIMENTS, Experiment
 from ._logged import git_commit
-from .replay import VISIBLE, check_whole_cycle
+from .replay import VISIBLE, check_played_schedules
 
 COM = "com"
 AXES = ("x", "y", "z")
@@ -114,21 +114,13 @@ class IdentifyExperiment:
             raise ConfigError(
                 f"experiment=identify fits the soft legs' model: use plant=cosserat, not {cfg.plant.name}"
             )
-        if not self.schedules:
-            raise ConfigError("experiment.schedules is empty: name at least one schedule (conf/schedule/)")
+        check_played_schedules(cfg, self.schedules, self.rate_hz, self.duration, self.measure_from_s)
         for name in self.schedules:
-            if name not in cfg.schedules:
-                raise ConfigError(
-                    f"experiment.schedules names {name!r}, which is not a schedule: choose from "
-                    f"{', '.join(sorted(cfg.schedules))} (conf/schedule/)"
-                )
             if cfg.schedules[name].heldout:
                 raise ConfigError(
                     f"experiment.schedules names {name!r}, a held-out gait (the model's test, never fitted): "
                     f"fit on the gaits in shared/data ({', '.join(VISIBLE)})"
                 )
-            check_schedule_ticks(cfg, cfg.schedules[name], self.rate_hz, "experiment.rate_hz")
-            check_whole_cycle(cfg.schedules[name], self.duration, self.measure_from_s)
         for gait in self.tracks:
             if gait not in self.schedules:
                 raise ConfigError(

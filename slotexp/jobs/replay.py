@@ -48,17 +48,24 @@ class ReplayExperiment:
             raise ConfigError(
                 f"experiment=replay plays tendon schedules on the soft legs: use plant=cosserat, not {cfg.plant.name}"
             )
-        if not self.schedules:
-            raise ConfigError("experiment.schedules is empty: name at least one schedule (conf/schedule/)")
-        for name in self.schedules:
-            if name not in cfg.schedules:
-                raise ConfigError(
-                    f"experiment.schedules names {name!r}, which is not a schedule: choose from "
-                    f"{', '.join(sorted(cfg.schedules))} (conf/schedule/)"
-                )
-            check_schedule_ticks(cfg, cfg.schedules[name], self.rate_hz, "experiment.rate_hz")
-            check_whole_cycle(cfg.schedules[name], self.duration, self.measure_from_s)
+        check_played_schedules(cfg, self.schedules, self.rate_hz, self.duration, self.measure_from_s)
         check_run_length(cfg, self.duration)
+
+
+def check_played_schedules(
+    cfg: SlotConfig, names: list[str], rate_hz: float, duration: float, measure_from_s: float
+) -> None:
+    """``experiment.schedules``: named, shipped, whole ticks of ``rate_hz`` per step, a whole cycle measured."""
+    if not names:
+        raise ConfigError("experiment.schedules is empty: name at least one schedule (conf/schedule/)")
+    for name in names:
+        if name not in cfg.schedules:
+            raise ConfigError(
+                f"experiment.schedules names {name!r}, which is not a schedule: choose from "
+                f"{', '.join(sorted(cfg.schedules))} (conf/schedule/)"
+            )
+        check_schedule_ticks(cfg, cfg.schedules[name], rate_hz, "experiment.rate_hz")
+        check_whole_cycle(cfg.schedules[name], duration, measure_from_s)
 
 
 def check_whole_cycle(schedule: ScheduleConfig, duration: float, measure_from_s: float) -> None:
