@@ -730,12 +730,24 @@ def config_from_yaml(text: str, experiment_schema: type, root: type = None) -> S
     A log whose config no longer fits the schema (written by another version) is
     reported as a :class:`ConfigError`.
     """
+    import yaml
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
     root = root or SlotConfig
     base = OmegaConf.structured(root(experiment=experiment_schema()))
     try:
+        stored = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}: {getattr(exc, 'problem', '')})" if mark is not None else ""
+        raise ConfigError(
+            f"the config stored in this log is not valid YAML{where}: the log's metadata is damaged; "
+            "rerun the experiment"
+        ) from None
+    if not isinstance(stored, dict):
+        raise ConfigError("the config stored in this log is not a mapping: the log's metadata is damaged; rerun it")
+    try:  # OmegaConf's own YAML reading (its floats: 1e-4 is a number to it, a string to PyYAML)
         return validate(OmegaConf.to_object(OmegaConf.merge(base, OmegaConf.create(text))))
     except OmegaConfBaseException as exc:
         raise ConfigError(

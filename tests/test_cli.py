@@ -763,3 +763,14 @@ def test_a_config_file_that_is_not_yaml_is_named_in_one_line(tmp_path: Path) -> 
     except yaml.YAMLError as exc:
         line = yaml_error_line(exc)
     assert "\n" not in line and str(bad) in line and "line 3" in line and "not valid YAML" in line
+
+
+@pytest.mark.parametrize(("stored", "named"), [("a: [unclosed", "not valid YAML"), ("- a list", "not a mapping")])
+def test_figures_on_a_log_with_damaged_config_metadata_is_one_line(tmp_path: Path, stored: str, named: str) -> None:
+    from slotexp.record import Recorder
+
+    (tmp_path / "run" / "logs").mkdir(parents=True)
+    meta = {"config": {"yaml": stored}, "run": {"experiment": "simulate"}}
+    with Recorder(tmp_path / "run" / "logs" / "walk.mcap", metadata=meta) as rec:
+        rec.write("/cost", 0.0, {"stage": 0.0})
+    assert_one_line_error(slot("figures", str(tmp_path / "run"), cwd=tmp_path), "config stored in this log", named)
