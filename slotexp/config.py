@@ -647,6 +647,14 @@ def validate(cfg: SlotConfig) -> SlotConfig:
         from .jobs import run_names
 
         raise ConfigError(f"no experiment selected: pass experiment=<name>, one of {', '.join(run_names())}")
+    from .jobs import EXPERIMENTS
+
+    registered = EXPERIMENTS.get(exp.name).schema if exp.name in EXPERIMENTS.names() else None
+    if registered is not None and not isinstance(exp, registered):
+        raise ConfigError(
+            f"experiment.name = {exp.name!r} does not match the experiment's settings ({type(exp).__name__}): "
+            f"the name comes with experiment=<name>; choose experiment={exp.name} instead of setting the name"
+        )
     check = getattr(exp, "check", None)
     if check is not None:
         check(cfg)

@@ -180,6 +180,7 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     ([""], ["empty"]),
     (["experiment.scenario=bäseline"], ["must be quoted", "experiment.scenario='bäseline'"]),
     (["mpç.horizon=3"], ["'mpç.horizon' is not a setting's name"]),
+    (["experiment=simulate", "experiment.name=perturb"], ["experiment.name = 'perturb'", "experiment=perturb"]),
     (["experiment=legmap", "plant=cosserat", "experiment.angles=3"], ["experiment.angles = 3", "needs 6"]),
     (["plant=rigid", "robot=mini_cheetah", f"robot.rigid.model={__file__}"], ["is not a model MuJoCo can read"]),
     (["-m", "hydra.launcher.n_jobs=0", "experiment=simulate"], ["hydra.launcher.n_jobs=0", "-1 for every core"]),
