@@ -199,8 +199,17 @@ def test_bad_arguments_are_one_line(args: list[str], words: list[str], tmp_path:
 
 def test_sigterm_stops_like_ctrl_c(tmp_path: Path) -> None:
     """In process (a service manager's SIGTERM): exit 143, torque off, log closed."""
+    def stop_once_handled() -> None:
+        # as a service manager would, but only once the loop has its handler in place (a loaded machine can take
+        # longer than any fixed delay to get there; the default action would end the test runner itself)
+        deadline = time.monotonic() + 60
+        while signal.getsignal(signal.SIGTERM) is signal.SIG_DFL and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # a few control cycles
+        os.kill(os.getpid(), signal.SIGTERM)
+
     with ServoEmulator() as emu, OdometryPublisher() as pub:
-        timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGTERM))
+        timer = threading.Thread(target=stop_once_handled, daemon=True)
         timer.start()
         result, _ = run_on_emulator(emu, pub, tmp_path, "duration=10")
         timer.join()
