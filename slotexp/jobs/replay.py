@@ -123,6 +123,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> pd.DataFrame:
         run = load_run(logs[name])
         row = {"gait": name, **gait_metrics(run.t, run.x, cycle_s(schedule), exp.measure_from_s)}
         row["robot_compass_deg"] = schedule.heading_deg
+        row["robot_turn"] = schedule.turn or ""  # a turning gait's spin on the robot (cw, ccw)
         row["robot_distance_per_cycle_mm"] = (
             schedule.robot_distance_per_cycle_m * 1e3 if schedule.robot_distance_per_cycle_m is not None else math.nan
         )
@@ -154,9 +155,14 @@ def replay_markdown(table: pd.DataFrame) -> str:
     lines = []
     for _, r in table.iterrows():
         robot_d = "—" if math.isnan(r["robot_distance_per_cycle_mm"]) else f"{r['robot_distance_per_cycle_mm']:.0f}"
+        if math.isnan(r["robot_compass_deg"]):  # a turn: its spin, ours by the yaw rate's sign (CCW positive)
+            turn = r.get("robot_turn", "") or "—"
+            robot, error = f"turns {turn}", f"turns {'cw' if r['yaw_rate_deg_s'] < 0 else 'ccw'}; "
+        else:
+            robot, error = f"{r['robot_compass_deg']:.0f}°", ""
+        heading_error = "" if math.isnan(r["heading_error_deg"]) else f" ({r['heading_error_deg']:+.0f}°)"
         lines.append(
-            f"| {r['gait']} | {r['robot_compass_deg']:.0f}° | {round(r['compass_deg']) % 360}° "
-            f"({r['heading_error_deg']:+.0f}°) "
+            f"| {r['gait']} | {robot} | {error}{round(r['compass_deg']) % 360}°{heading_error} "
             f"| {r['heading_deg']:+.0f}° | {r['distance_per_cycle_mm']:.1f} / {robot_d} | {r['speed_mm_s']:.1f} "
             f"| {r['yaw_rate_deg_s']:+.2f} | {r['heave_mm']:.1f} |"
         )
