@@ -202,6 +202,7 @@ def test_bad_arguments_are_one_line(args: list[str], words: list[str], tmp_path:
 
 def test_sigterm_stops_like_ctrl_c(tmp_path: Path) -> None:
     """In process (a service manager's SIGTERM): exit 143, torque off, log closed."""
+
     def stop_once_handled() -> None:
         # as a service manager would, but only once the loop has its handler in place (a loaded machine can take
         # longer than any fixed delay to get there; the default action would end the test runner itself)

@@ -216,13 +216,12 @@ def test_the_search_verifies_a_mirror_image_as_it_stands_and_it_walks_the_mirror
     forward = Primitive.from_config(seed)
     image = forward.mirrored("y")  # front and back swapped: its first leg's phase is no longer zero
     assert image.phase[0] != 0.0
-    gait_search._init_worker(cfg, style)
-    ahead, back = (gait_search._evaluate((p, 2.0, 0.5)) for p in (forward, image))
+    ahead, back = (gait_search._evaluate((cfg, style, p, 2.0, 0.5)) for p in (forward, image))
     # the torso, legs and friction are symmetric about the body y axis: the image walks the mirrored way
     assert ahead["vx"] > 5.0
     assert back["vx"] == pytest.approx(-ahead["vx"], rel=0.01) and back["vy"] == pytest.approx(ahead["vy"], abs=0.2)
     # the same schedule shifted in time (what the search's vector keeps of it) meets other 30 Hz ticks
-    shifted = gait_search._evaluate((from_vector(to_vector(image, TOP), TOP), 2.0, 0.5))
+    shifted = gait_search._evaluate((cfg, style, from_vector(to_vector(image, TOP), TOP), 2.0, 0.5))
     assert abs(shifted["vx"] - back["vx"]) > 1.0
 
 
