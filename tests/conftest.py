@@ -1,0 +1,35 @@
+"""Shared test configuration: the ``slow`` mark (``pytest -m "not slow"`` runs the quick subset)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+SLOW_LIST = Path(__file__).with_name("slow_tests.txt")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "slow: takes a second or more (listed in tests/slow_tests.txt)")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark the listed tests slow, and every test that shares a module- or session-scoped fixture of ours with
+    one of them (the fixture's set-up is the slow part, and the first test left in would pay for it)."""
+    listed = {line.strip() for line in SLOW_LIST.read_text().splitlines() if line.strip() and not line.startswith("#")}
+
+    def shared_fixtures(item: pytest.Item) -> set[tuple[str, str]]:
+        info = getattr(item, "_fixtureinfo", None)
+        if info is None:
+            return set()
+        out = set()
+        for name, defs in info.name2fixturedefs.items():
+            last = defs[-1]
+            if last.scope != "function" and last.baseid:  # ours (pytest's own have no baseid)
+                out.add((last.baseid, name))
+        return out
+
+    slow_fixtures = set().union(*(shared_fixtures(i) for i in items if i.nodeid in listed))
+    for item in items:
+        if item.nodeid in listed or shared_fixtures(item) & slow_fixtures:
+            item.add_marker(pytest.mark.slow)
