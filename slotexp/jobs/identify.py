@@ -396,7 +396,9 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
 
     exp = cfg.experiment
     specs = list(exp.parameters)
-    table_spec, track_specs = exp.observations, dict(exp.tracks)
+    # absolute, as they are recorded in the log: slot figures reads them again from wherever it is run
+    table_spec = exp.observations
+    track_specs = {g: str(Path(spec).expanduser().resolve()) for g, spec in exp.tracks.items()}
     if exp.synthetic.truth is not None:
         path, track_specs = synthetic_observations(cfg, out_dir)
         table_spec = str(path)
