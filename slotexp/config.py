@@ -145,6 +145,10 @@ class LegConfig:
     tendon_max_deg: float = num_field(116.28, lo=0.0, lo_open=True, hi=360.0, unit="deg")
     # Viscous damping of each node's (and element's) motion relative to the root, 1/s.
     damping_per_s: float = num_field(20.0, lo=0.0, unit="1/s")
+    # Across its plane the leg is rigid (its nodes move with the torso), or its contact patch rides on the
+    # leg's sideways bending: a spring of the tapered cantilever's tip stiffness in series with the foot's
+    # friction (slotexp.soft.rod.lateral_stiffness: 31 N/m at E = 1e7 Pa, against 7 N/m in its plane).
+    out_of_plane: str = choice_field("rigid", "rigid", "bending")
 
 
 @dataclass

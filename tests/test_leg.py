@@ -7,7 +7,14 @@ from scipy.linalg import eigh
 from slotexp.config import LegConfig
 from slotexp.soft.integrators import LegSim, stable_dt
 from slotexp.soft.params import make_par
-from slotexp.soft.rod import build_leg, elastic_energy, elastic_forces, elastic_hessian_band, model_from_shape
+from slotexp.soft.rod import (
+    build_leg,
+    elastic_energy,
+    elastic_forces,
+    elastic_hessian_band,
+    lateral_stiffness,
+    model_from_shape,
+)
 
 L, W, H, E, RHO = 0.19, 0.02, 0.005, 1.0e7, 1200.0
 EI = E * W * H**3 / 12
@@ -246,3 +253,19 @@ def test_banded_solver_and_product_match_dense_algebra(n):
     x = b.copy()
     banded_substitute(band, x)
     np.testing.assert_allclose(x, np.linalg.solve(dense, b), rtol=1e-12, atol=1e-13)
+
+
+def test_the_sideways_tip_stiffness_is_the_cantilevers_and_the_rigid_leg_has_none():
+    # robot.leg.out_of_plane=bending: a strip of even thickness t bends sideways about its stiff axis,
+    # I = t w^3 / 12, with the cantilever's tip stiffness 3 E I / L^3 (L its arc length); tapered, it lies
+    # between the even strips of its tip's and its root's thickness, and it scales with E.
+    even = LegConfig(out_of_plane="bending", thickness_root=0.008, thickness_tip=0.008)
+    length = build_leg(even).length
+    assert lateral_stiffness(even) == pytest.approx(3 * 1e7 * 0.008 * 0.02**3 / 12 / length**3, rel=1e-6)
+    tapered = LegConfig(out_of_plane="bending")
+    k = lateral_stiffness(tapered)
+    thin, thick = (LegConfig(out_of_plane="bending", thickness_root=t, thickness_tip=t) for t in (0.0035, 0.0135))
+    assert lateral_stiffness(thin) < k < lateral_stiffness(thick)
+    assert k == pytest.approx(30.8, abs=0.3)  # the paper's leg: 31 N/m, about 4x its in-plane tip stiffness
+    assert lateral_stiffness(LegConfig(out_of_plane="bending", youngs_modulus=2e7)) == pytest.approx(2 * k)
+    assert lateral_stiffness(LegConfig()) == 0.0  # rigid across the plane, the default

@@ -7,7 +7,11 @@ on the torso, so torso and legs share one step. Tendons are driven by servos
 (first-order lag towards the commanded angle, tension capped by the stall torque
 over the pulley radius). No fictitious force holds anything up.
 
-Out of plane we assume each leg rigid (its width, 20 mm, is 1.5-6x its thickness):
+Out of plane each leg is rigid by default (its width, 20 mm, is 1.5-6x its thickness); with
+``robot.leg.out_of_plane=bending`` its pressed nodes' contact rides on a sideways spring, the
+tapered strip's tip stiffness across its plane (about 31 N/m), in series with their friction
+(:func:`_series_spring`): the foot can hold while the torso moves across the leg's plane. The
+rigid assumption, which the rest of this paragraph describes either way for the legs' mass:
 - a node moves across its leg's plane with the torso's rigid motion at the node,
   so the legs' mass across their planes belongs to the torso's inertia
   (:func:`augmented_inertia`: 7 % more sideways mass, about twice the yaw inertia);
@@ -40,7 +44,7 @@ from ..robot import RobotModel
 from ..soft.integrators import divergence_message, implicit_once, jacobian_state, stable_dt, symplectic_once
 from ..soft.loads import coulomb_friction, friction_slope, rest_free_length
 from ..soft.params import O_DIV, O_F, O_FL, O_FX, O_FZ, O_M, O_N, O_T, OUT, leg_params
-from ..soft.rod import LegModel, build_leg
+from ..soft.rod import LegModel, build_leg, lateral_stiffness
 from ..soft.servo import RPM_TO_RAD_S, servo_step
 from . import PLANTS, TendonCommand
 
@@ -288,6 +292,23 @@ def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly):
 
 
 @njit(cache=True)
+def _series_spring(k_lat, deflection, slope_sum, h):
+    """A leg's contact patch on a sideways spring ``k_lat`` in series with its friction (slopes summing to C).
+
+    The patch is massless: the spring's force k (d + h d'), taken implicitly, equals the friction
+    at the patch's slip, G - c (j . xi + d') summed over its nodes. Solved for d' and put back,
+    the force the leg passes to the torso is alpha (G - sum c j . xi) + C k d / (k h + C) with
+    alpha = k h / (k h + C): each node's affine part and slope scaled by ``alpha``, plus its share
+    c ``hold`` of the spring's pre-load (``hold`` = k d / (k h + C)). Sticking (C large) the torso
+    feels the spring; sliding (C small) the friction. Rigid (``k_lat`` = 0): alpha 1, hold 0.
+    """
+    if k_lat <= 0.0:
+        return 1.0, 0.0
+    denominator = k_lat * h + slope_sum
+    return k_lat * h / denominator, k_lat * deflection / denominator
+
+
+@njit(cache=True)
 def coupled_steps(
     torso,
     momentum,
@@ -342,6 +363,8 @@ def coupled_steps(
     belly_points,
     belly_par,
     belly,
+    lateral,
+    k_lat,
     hold_torso,
 ):
     """Advance torso and four legs ``n_steps`` steps of ``h``.
@@ -364,7 +387,9 @@ def coupled_steps(
     step, its friction across the plane included. ``belly_points`` (P, 3) are the torso's points that
     touch the ground (body frame; none: no torso contact), ``belly_par`` their (stiffness, damping, mu,
     v_eps), and ``belly`` (3,) receives their normal and friction force (x, y) at the last step.
-    With ``hold_torso`` the torso stays where it
+    ``lateral`` (4, 2) is each leg's contact patch's deflection across its plane and its rate, on a
+    spring of ``k_lat`` N/m in series with the patch's friction (:func:`_series_spring`; 0: rigid, the
+    patch moves with the torso and ``lateral`` stays zero). With ``hold_torso`` the torso stays where it
     is, at rest (the legs settle under it). Returns the number of steps done (< n_steps on divergence).
     """
     n_legs = pos.shape[0]
@@ -373,6 +398,9 @@ def coupled_steps(
     inv_inertia = 1.0 / inertia_el
     root = np.zeros(6)
     vlat = np.zeros(n_nodes)
+    f0s = np.zeros(n_nodes)  # a leg's pressed nodes' friction across the plane, and its slope
+    slopes = np.zeros((n_legs, n_nodes))
+    pulls = np.zeros(n_legs)  # per leg, the sum of its nodes' F0 + c v (the friction's affine part)
     cy = np.cos(yaw)
     sy = np.sin(yaw)
     aug = np.empty((6, 6))  # the torso's 6x6 inertia at this step's pose
@@ -416,7 +444,7 @@ def coupled_steps(
             root[5] = ww0 * uy - ww1 * ux  # omega . (u x e_z)
             # each node's velocity across the plane: the torso's rigid motion there, j . (v, w)
             w0 = rcx * ly - rcy * lx
-            lat_v = lx * xi[0] + ly * xi[1]
+            lat_v = lx * xi[0] + ly * xi[1] + lateral[i, 1]  # the patch's own sideways rate on top
             turn = lx * ww1 - ly * ww0
             for k in range(1, n_nodes):
                 vlat[k] = lat_v + (pos[i, k, 1] - p2) * turn + (w0 + pos[i, k, 0]) * ww2
@@ -505,17 +533,34 @@ def coupled_steps(
             # plane after its step), linearised in the torso's velocity: F = F0 - c j . (xi_new - xi). With
             # j = (lat, -ly z, lx z, w) per node, the leg's share of the load and of C = sum c j j^T needs
             # only sums over its nodes of f, f z, f w and of c, c z, c w, c z z, c z w, c w w.
-            lateral = 0.0
-            sf = sfz = sfw = sc = scz = scw = sczz = sczw = scww = 0.0
+            # With a compliant patch each node's F0 + c v and c pass through the series spring first.
+            across = 0.0
+            csum = gsum = 0.0
             for k in range(1, n_nodes):
+                f0s[k] = 0.0
+                slopes[i, k] = 0.0
                 nrm = normal[i, k]
                 if nrm <= 0.0:
                     continue
                 vs = vel[i, k, 0]
                 _, f0 = coulomb_friction(vs, vlat[k], nrm, mu, v_eps)
-                c = friction_slope(vlat[k], vs, nrm, mu, v_eps)
-                lateral += f0
-                f = f0 + c * vlat[k]  # vlat = j . xi, the slip it was taken at
+                f0s[k] = f0
+                slopes[i, k] = friction_slope(vlat[k], vs, nrm, mu, v_eps)
+                csum += slopes[i, k]
+                gsum += f0s[k] + slopes[i, k] * vlat[k]
+            pulls[i] = gsum
+            alpha, hold = _series_spring(k_lat, lateral[i, 0], csum, h)
+            sf = sfz = sfw = sc = scz = scw = sczz = sczw = scww = 0.0
+            for k in range(1, n_nodes):
+                if normal[i, k] <= 0.0:
+                    continue
+                f0 = f0s[k]
+                c = slopes[i, k]
+                across += alpha * (f0 + c * lateral[i, 1]) + c * hold
+                f = (
+                    alpha * (f0 + c * vlat[k]) + c * hold
+                )  # vlat = j . xi (+ the patch's rate), the slip it was taken at
+                c *= alpha
                 z = pos[i, k, 1] - p2
                 w = w0 + pos[i, k, 0]
                 sf += f
@@ -554,9 +599,9 @@ def coupled_steps(
                 damp[4, 4] += lx * lx * sczz
                 damp[4, 5] += lx * sczw
                 damp[5, 5] += scww
-            out[i, O_FL] = lateral
-            reaction[i, 0] = fwx + lateral * lx
-            reaction[i, 1] = fwy + lateral * ly
+            out[i, O_FL] = across
+            reaction[i, 0] = fwx + across * lx
+            reaction[i, 1] = fwy + across * ly
             reaction[i, 2] = fwz
             reaction[i, 3] = mwx
             reaction[i, 4] = mwy
@@ -600,8 +645,19 @@ def coupled_steps(
             w0 = rcx * ly - rcy * lx
             lat_v = lx * xi_new[0] + ly * xi_new[1]
             turn = lx * xi_new[4] - ly * xi_new[3]
+            pulled = 0.0  # sum of c j . xi_new over the pressed nodes
             for k in range(1, n_nodes):
-                eta[i, k] += h * (lat_v + (pos[i, k, 1] - p2) * turn + (w0 + pos[i, k, 0]) * xi_new[5])
+                u = lat_v + (pos[i, k, 1] - p2) * turn + (w0 + pos[i, k, 0]) * xi_new[5]
+                eta[i, k] += h * u
+                pulled += slopes[i, k] * u
+            if k_lat > 0.0:
+                # the massless patch: spring k (d + h d') = friction sum(F0 + c v) - sum(c j . xi_new) - C d'
+                csum = 0.0
+                for k in range(1, n_nodes):
+                    csum += slopes[i, k]
+                rate = (pulls[i] - pulled - k_lat * lateral[i, 0]) / (k_lat * h + csum)
+                lateral[i, 0] += h * rate
+                lateral[i, 1] = rate
         torso[0] += h * xi_new[0]
         torso[1] += h * xi_new[1]
         torso[2] += h * xi_new[2]
@@ -667,6 +723,8 @@ def batch_steps(
     belly_points,
     belly_par,
     belly,
+    lateral,
+    k_lat,
     done,
 ):
     """:func:`coupled_steps` for B robots of one model at once, one thread per robot: every per-robot
@@ -726,6 +784,8 @@ def batch_steps(
             belly_points,
             belly_par,
             belly[b],
+            lateral[b],
+            k_lat,
             False,
         )
 
@@ -796,6 +856,8 @@ class CosseratPlant:
         mu_belly = contact.friction if cfg.robot.torso.friction is None else cfg.robot.torso.friction
         self.belly_par = np.array([contact.stiffness, contact.damping, mu_belly, contact.slip_velocity])
         self.belly = np.zeros(3)  # the torso's underside on the ground: normal force, friction x, y
+        self.k_lat = lateral_stiffness(cfg.robot.leg)  # 0: the legs are rigid across their planes
+        self.lateral = np.zeros((4, 2))  # each contact patch's deflection across its plane (m) and its rate
         self.normal = np.zeros((4, n))
         self.out = np.zeros((4, len(OUT)))
         self.reaction = np.zeros((4, 6))
@@ -876,6 +938,7 @@ class CosseratPlant:
             "/legs/contact": {
                 "normal_n": self.out[:, O_N].copy(),
                 "friction_n": np.hypot(self.out[:, O_F], self.out[:, O_FL]),
+                "lateral_m": self.lateral[:, 0].copy(),  # the patch's deflection across the plane
             },
             "/legs/root": {"force_n": self.reaction[:, 0:3].copy(), "moment_nm": self.reaction[:, 3:6].copy()},
             "/torso/contact": {"normal_n": float(self.belly[0]), "friction_n": self.belly[1:3].copy()},
@@ -1051,6 +1114,8 @@ class CosseratPlant:
             self.belly_points,
             self.belly_par,
             own["belly"],
+            own["lateral"],
+            self.k_lat,
         )
 
     def _advanced(self, done: int, n: int, h: float, what: str, loads: str) -> None:
@@ -1100,6 +1165,7 @@ _OWN = (
     "out",
     "reaction",
     "belly",
+    "lateral",
 )
 
 
