@@ -400,7 +400,8 @@ def coupled_steps(
     vlat = np.zeros(n_nodes)
     f0s = np.zeros(n_nodes)  # a leg's pressed nodes' friction across the plane, and its slope
     slopes = np.zeros((n_legs, n_nodes))
-    pulls = np.zeros(n_legs)  # per leg, the sum of its nodes' F0 + c v (the friction's affine part)
+    pulls = np.zeros(n_legs)  # per leg, the sum of its nodes' F0 + c v (the friction's affine part) ...
+    grips = np.zeros(n_legs)  # ... and of their slopes c
     cy = np.cos(yaw)
     sy = np.sin(yaw)
     aug = np.empty((6, 6))  # the torso's 6x6 inertia at this step's pose
@@ -549,6 +550,7 @@ def coupled_steps(
                 csum += slopes[i, k]
                 gsum += f0s[k] + slopes[i, k] * vlat[k]
             pulls[i] = gsum
+            grips[i] = csum
             alpha, hold = _series_spring(k_lat, lateral[i, 0], csum, h)
             sf = sfz = sfw = sc = scz = scw = sczz = sczw = scww = 0.0
             for k in range(1, n_nodes):
@@ -557,9 +559,8 @@ def coupled_steps(
                 f0 = f0s[k]
                 c = slopes[i, k]
                 across += alpha * (f0 + c * lateral[i, 1]) + c * hold
-                f = (
-                    alpha * (f0 + c * vlat[k]) + c * hold
-                )  # vlat = j . xi (+ the patch's rate), the slip it was taken at
+                # vlat = j . xi (+ the patch's rate), the slip it was taken at
+                f = alpha * (f0 + c * vlat[k]) + c * hold
                 c *= alpha
                 z = pos[i, k, 1] - p2
                 w = w0 + pos[i, k, 0]
@@ -652,10 +653,7 @@ def coupled_steps(
                 pulled += slopes[i, k] * u
             if k_lat > 0.0:
                 # the massless patch: spring k (d + h d') = friction sum(F0 + c v) - sum(c j . xi_new) - C d'
-                csum = 0.0
-                for k in range(1, n_nodes):
-                    csum += slopes[i, k]
-                rate = (pulls[i] - pulled - k_lat * lateral[i, 0]) / (k_lat * h + csum)
+                rate = (pulls[i] - pulled - k_lat * lateral[i, 0]) / (k_lat * h + grips[i])
                 lateral[i, 0] += h * rate
                 lateral[i, 1] = rate
         torso[0] += h * xi_new[0]
