@@ -262,16 +262,9 @@ def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly):
         return
     mu, v_eps = par[2], par[3]
     fx, fy = coulomb_friction(vx, vy, nrm, mu, v_eps)
-    speed = np.sqrt(vx * vx + vy * vy)
-    # slope of the friction in the floor's plane: mu N / v_eps sticking; sliding, mu N / |v| across the slip
-    if speed < v_eps:
-        cxx = cyy = mu * nrm / v_eps
-        cxy = 0.0
-    else:
-        scale = mu * nrm / (speed * speed * speed)
-        cxx = scale * vy * vy
-        cyy = scale * vx * vx
-        cxy = -scale * vx * vy
+    # the friction's slope in the floor's plane: its secant, as the legs' (friction_slope)
+    cxx = cyy = friction_slope(vx, vy, nrm, mu, v_eps)
+    cxy = 0.0
     # the point's horizontal velocity is J (v, w): rows jx = (1, 0, 0, 0, r2, -r1), jy = (0, 1, 0, -r2, 0, r0)
     gx = fx + cxx * vx + cxy * vy  # F0 + C v, so that load - C xi_new is the friction at the new velocity
     gy = fy + cxy * vx + cyy * vy

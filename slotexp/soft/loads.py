@@ -233,8 +233,10 @@ def dissipative_params(par):
 
 
 # The implicit step's friction Jacobian is kept in levels a factor of 4 apart (a level is the largest slope it
-# stands for, so the factored W damps at least as much as the friction does: stable at any step); below the
-# last level the slope is left out (at most mu N / v_eps / 4^FRICTION_LEVELS, far below a node's m / h).
+# stands for, so the factored W damps at least as much as the friction's secant: stable at any step, and a
+# slip is never reversed by its own friction); below the last level (slips faster than 4^FRICTION_LEVELS v_eps,
+# 65 m/s at the default 1 mm/s) the slope is left out, at most mu N / v_eps / 4^FRICTION_LEVELS, far below a
+# node's m / h.
 FRICTION_LEVELS = 8
 
 
@@ -253,13 +255,16 @@ def coulomb_friction(vs, vlat, nrm, mu, v_eps):
 
 @njit(cache=True)
 def friction_slope(v, v_other, nrm, mu, v_eps):
-    """-dF/dv of :func:`coulomb_friction`'s component along ``v`` with the other component held:
-    mu N / v_eps below the slip velocity, mu N v_other^2 / |v|^3 while sliding (zero when the
-    node slides straight along ``v``, as 1-D Coulomb friction)."""
-    speed = np.sqrt(v * v + v_other * v_other)
-    if speed < v_eps:
-        return mu * nrm / v_eps
-    return mu * nrm * v_other * v_other / (speed * speed * speed)
+    """The slope the linearly implicit steps give :func:`coulomb_friction` along ``v`` (``v_other`` the
+    slip's other component): its secant mu N / max(|v|, v_eps), alike in every direction.
+
+    Below the slip velocity this is the law's own slope. While the node slides it is the
+    friction's size over the slip's, so the step takes F(v') = -mu N v' / |v|: exact while the
+    slip holds, and a friction that can stop a slip within a step but never reverse it. The
+    tangent (zero along a straight slip) would leave the friction explicit along the slip,
+    and a light node sliding at less than h mu N / m would be thrown back and forth each step.
+    """
+    return mu * nrm / max(np.sqrt(v * v + v_other * v_other), v_eps)
 
 
 @njit(cache=True)
@@ -312,10 +317,10 @@ def contact_force(depth, vx, vz, vlat, k_c, d_c, mu, v_eps):
     N = k depth - d vz and (F_x, F_lat) = :func:`coulomb_friction` at the slip (vx, ``vlat``).
     Returns (N, F_x, g, regime) with g = F_x / (-mu N) (how much of the friction acts along
     the plane) and the regime that fixes the Jacobian's structure: 0 not pressed (N, F_x = 0),
-    1 sticking (|v| < v_eps: a stiff viscous law), 2 or 3 sliding forwards or backwards with
-    no slope along the plane worth keeping, 4 + 2 k (+ 1 backwards) sliding with a slope at
-    level k (:func:`friction_level`: the node also slips across the plane). The implicit step
-    refactors its Jacobian when a node's regime changes.
+    1 sticking (|v| < v_eps: a stiff viscous law), 4 + 2 k (+ 1 backwards) sliding with its
+    secant slope (:func:`friction_slope`) at level k (:func:`friction_level`), 2 or 3 sliding
+    forwards or backwards so fast that the slope is left out. The implicit step refactors its
+    Jacobian when a node's regime changes.
     """
     nrm = k_c * depth - d_c * vz
     if nrm <= 0.0:
@@ -338,7 +343,7 @@ def contact_jacobian(i, nrm, g, regime, h, k_c, d_c, mu, v_eps, kband, band):
 
     The friction's slope along the plane is the largest its regime stands for (mu N / v_eps
     sticking, the level's bound sliding), so the factored matrix damps at least as much as
-    the friction does."""
+    the friction's secant."""
     if regime == 0:
         return
     h2 = h * h
