@@ -54,6 +54,10 @@ def _overrides(job: Path) -> dict[str, str]:
         items = yaml.safe_load((job / OVERRIDES).read_text()) or []
     except (OSError, yaml.YAMLError) as exc:
         raise UserError(f"{job / OVERRIDES}: cannot read the job's overrides ({exc.__class__.__name__})") from exc
+    if not isinstance(items, list):
+        raise UserError(
+            f"{job / OVERRIDES}: expected Hydra's list of overrides (- key=value), found a {type(items).__name__}"
+        )
     out = {}
     for item in items:
         key, _, value = str(item).partition("=")
@@ -75,19 +79,30 @@ def _metrics(job: Path) -> dict[str, float]:
     """Table I aggregated over the job's scenarios, or the flat numbers of metrics.json."""
     table = job / "table1.csv"
     if table.is_file():
-        t = pd.read_csv(table)
-        settle = pd.to_numeric(t["settle_s"], errors="coerce")
+        try:
+            t = pd.read_csv(table)
+            settle = pd.to_numeric(t["settle_s"], errors="coerce")
+            costs = t[["max_cost", "mean_cost", "final_cost"]].apply(pd.to_numeric, errors="raise")
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, KeyError, ValueError, TypeError) as exc:
+            raise UserError(
+                f"{table}: not a Table I written by slot ({exc.__class__.__name__}); rerun the job"
+            ) from exc
         return {
             "scenarios": len(t),
-            "max_cost": float(t["max_cost"].max()),
-            "mean_cost": float(t["mean_cost"].mean()),
-            "final_cost_max": float(t["final_cost"].max()),
+            "max_cost": float(costs["max_cost"].max()),
+            "mean_cost": float(costs["mean_cost"].mean()),
+            "final_cost_max": float(costs["final_cost"].max()),
             "settle_s_max": float(settle.max()) if settle.notna().any() else math.nan,
             "unsettled": int(settle.isna().sum()),
         }
     path = job / "metrics.json"
     if path.is_file():
-        data = json.loads(path.read_text())
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise UserError(f"{path}: not readable JSON ({exc.__class__.__name__}); rerun the job") from exc
+        if not isinstance(data, dict):
+            raise UserError(f"{path}: expected a JSON object of metrics, found a {type(data).__name__}")
         return {k: float(v) for k, v in data.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
     return {}
 

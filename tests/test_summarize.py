@@ -68,7 +68,15 @@ def test_swept_settings_become_columns_and_deterministic_counts_apart(tmp_path: 
     assert (tmp_path / "summary.csv").is_file() and (tmp_path / "summary.png").is_file()
 
 
-@pytest.mark.parametrize("case", ["missing", "empty", "corrupt_log"])
+BROKEN_JOB = {  # a job file -> contents that are not what slot writes there
+    "corrupt_metrics": ("metrics.json", "{not json"),
+    "list_metrics": ("metrics.json", "[1, 2]"),
+    "scalar_override": (".hydra/overrides.yaml", "solver=scs\n"),
+    "corrupt_table": ("table1.csv", "scenario,max_cost\nbaseline,high\n"),
+}
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "corrupt_log", *BROKEN_JOB])
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, sweep: Path, case: str) -> None:
     target = tmp_path / "multirun"
     if case == "empty":
@@ -77,6 +85,15 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, sweep: Path, case: str
         shutil.copytree(sweep, target, ignore=shutil.ignore_patterns("summary.*"))
         log = next(target.glob("1_*/logs/*.mcap"))
         log.write_bytes(b"not an mcap file at all")
+    elif case in BROKEN_JOB:
+        shutil.copytree(sweep, target, ignore=shutil.ignore_patterns("summary.*"))
+        name, text = BROKEN_JOB[case]
+        job = next(target.glob("1_*"))
+        if name == "metrics.json":
+            (job / "table1.csv").unlink()  # a job without Table I is summarised from its metrics
+        (job / name).write_text(text)
     proc = slot("summarize", target, cwd=tmp_path)
     line = assert_one_line_error(proc)
     assert str(target) in line or "multirun" in line
+    if case in BROKEN_JOB:
+        assert BROKEN_JOB[case][0].split("/")[-1] in line  # it names the file to fix
