@@ -608,7 +608,14 @@ def figures(
                 fail(f"{logs[0]}: log metadata names no known experiment ({name!r})")
             experiment = EXPERIMENTS.get(name)
             cfg = config_from_yaml(meta.get("config", {}).get("yaml", "{}"), experiment.schema, experiment.root_schema)
-            experiment.report(run_dir, cfg)
+            try:
+                experiment.report(run_dir, cfg)
+            except (KeyError, TypeError, ValueError, IndexError) as exc:  # a topic without the fields it should hold
+                detail = " ".join(str(exc).split())[:160]
+                fail(
+                    f"{run_dir / 'logs'}: the logs do not hold what a {name} run writes ({type(exc).__name__}: "
+                    f"{detail}); rebuild only from logs a slot run wrote"
+                )
     except UserError as exc:
         fail(str(exc))
     typer.echo(str(run_dir))

@@ -775,3 +775,25 @@ def test_figures_on_a_log_with_damaged_config_metadata_is_one_line(tmp_path: Pat
     with Recorder(tmp_path / "run" / "logs" / "walk.mcap", metadata=meta) as rec:
         rec.write("/cost", 0.0, {"stage": 0.0})
     assert_one_line_error(slot("figures", str(tmp_path / "run"), cwd=tmp_path), "config stored in this log", named)
+
+
+@pytest.mark.parametrize(
+    ("case", "state"),
+    [("strings", {"rpy": ["a", "b", "c"], "p": ["x", "y", "z"]}), ("other_fields", {"foo": 1.0, "bar": [2.0]})],
+)
+def test_figures_on_a_log_whose_topics_hold_other_fields_is_one_line(
+    simulate_run: Path, tmp_path: Path, case: str, state: dict
+) -> None:
+    # a log with the run's own (valid) config, whose numeric topics hold strings or other fields than slot writes
+    from slotexp.record import Recorder, read_log
+    from slotexp.runlog import RUN_TOPICS
+
+    source = next((simulate_run / "logs").glob("*.mcap"))
+    meta = read_log(source, topics=()).metadata
+    (tmp_path / "run" / "logs").mkdir(parents=True)
+    with Recorder(tmp_path / "run" / "logs" / source.name, metadata=meta) as rec:
+        for k in range(5):
+            for topic in RUN_TOPICS:  # every topic a run's tables read, none with what slot writes there
+                rec.write(topic, k / 30, state)
+    line = assert_one_line_error(slot("figures", str(tmp_path / "run"), cwd=tmp_path, timeout=60), "do not hold")
+    assert "simulate" in line and str(tmp_path / "run" / "logs") in line
