@@ -173,6 +173,7 @@ RUNS = {
         "plant=cosserat",
         "controller=paper",
         "gait=walk",
+        "gait.velocity=[0.08,0]",  # the paper's command (plant=cosserat's default is the library's 15 mm/s)
         "experiment.duration=12",
     ],
     # Step-size convergence of the walk (the exact implicit step, a fresh Jacobian every step, at a quarter
