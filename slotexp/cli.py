@@ -10,6 +10,7 @@ from inside a job.
 from __future__ import annotations
 
 import itertools
+import logging
 import os
 import signal
 import sys
@@ -415,6 +416,18 @@ def _run_help() -> str:
     )
 
 
+class _DropJoblibSettings(logging.Filter):
+    """Drops the joblib launcher's line of pool settings (Joblib.Parallel(n_jobs=..., backend=..., ...)): the
+    sweep's own lines (its output directory, one per job) say what a user needs."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("Joblib.Parallel(")
+
+
+def _quiet_joblib_settings() -> None:
+    logging.getLogger("hydra_plugins.hydra_joblib_launcher._core").addFilter(_DropJoblibSettings())
+
+
 @app.command(
     context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": ["--help"]},
     help=_run_help(),
@@ -433,6 +446,7 @@ def run(ctx: typer.Context) -> None:
         from .sweepstop import become_sweep_parent
 
         become_sweep_parent()
+        _quiet_joblib_settings()
     register_schemas()
     sys.argv = ["slot", *args]
     main_fn = hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")(_hydra_task)

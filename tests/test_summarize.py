@@ -20,7 +20,7 @@ def sweep(tmp_path_factory) -> Path:
     # start process pools of their own, so each runs its scenarios in its own process (slotexp.parallel)
     root = tmp_path_factory.mktemp("sweep")
     out = root / "multirun"
-    ok(
+    proc = ok(
         slot(
             "run",
             "-m",
@@ -33,6 +33,9 @@ def sweep(tmp_path_factory) -> Path:
             timeout=300,
         )
     )
+    said = proc.stdout + proc.stderr
+    # the sweep says where it writes and what each job runs, not the joblib pool's settings
+    assert "Launching jobs, sweep output dir" in said and "#1 : " in said and "Joblib.Parallel(" not in said
     return out
 
 
