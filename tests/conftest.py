@@ -1,4 +1,5 @@
-"""Shared test configuration: the ``slow`` mark (``pytest -m "not slow"`` runs the quick subset)."""
+"""Shared test configuration: the ``slow`` mark (``pytest -m "not slow"`` runs the quick subset) and the
+``serial`` mark (real-time tests that must not share the machine: ``make test`` runs them alone)."""
 
 from __future__ import annotations
 
@@ -7,10 +8,13 @@ from pathlib import Path
 import pytest
 
 SLOW_LIST = Path(__file__).with_name("slow_tests.txt")
+# real time: a servo emulator on a pseudo-terminal answering at the bus's pace, the live view's pacing and lingering
+SERIAL_MODULES = ("test_hardware_cli.py", "test_hardware_emulator.py", "test_hardware_loop.py", "test_scene.py")
 
 
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "slow: takes a second or more (listed in tests/slow_tests.txt)")
+    config.addinivalue_line("markers", "serial: runs in real time, alone (tests/conftest.py SERIAL_MODULES)")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -33,3 +37,5 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.nodeid in listed or shared_fixtures(item) & slow_fixtures:
             item.add_marker(pytest.mark.slow)
+        if item.path.name in SERIAL_MODULES:
+            item.add_marker(pytest.mark.serial)
