@@ -37,8 +37,8 @@ HELD_OUT = (
     "experiment.schedules=[walk_30,walk_60,walk_120,walk_135,walk_150,walk_210,walk_225,walk_240,walk_300,"
     "walk_315,walk_330,turn_right,turn_left]"
 )
-LIBRARY = ROOT / "slotexp" / "conf" / "library" / "default.yaml"
-CALIBRATED = ROOT / "slotexp" / "conf" / "actuation" / "calibrated.yaml"
+LIBRARY = ROOT / "conf" / "library" / "default.yaml"
+CALIBRATED = ROOT / "conf" / "actuation" / "calibrated.yaml"
 
 RUNS = {
     # Paper Table I, Figs. 7-8 on the ideal plant with the default solver.
@@ -54,7 +54,7 @@ RUNS = {
     "simulate_crawl": ["experiment=simulate", "gait=crawl"],
     "simulate_omni60": ["experiment=simulate", "gait=omni60"],
     # --- soft legs ---
-    # The force-to-tendon map of our leg (paper eq. 11); also installed as slotexp/conf/actuation/calibrated.yaml.
+    # The force-to-tendon map of our leg (paper eq. 11); also installed as conf/actuation/calibrated.yaml.
     "calibrate": ["experiment=calibrate"],
     # ... and with the authors' code's E = 1e6 Pa.
     "calibrate_E1e6": ["experiment=calibrate", "robot.leg.youngs_modulus=1e6"],
@@ -79,7 +79,7 @@ RUNS = {
     ],
     # The leg's quasi-static maps (eq. 11 generalised).
     "legmap": ["experiment=legmap", "plant=cosserat"],
-    # The gait library: CMA-ES on the soft plant; installed as slotexp/conf/library/default.yaml. Searched at
+    # The gait library: CMA-ES on the soft plant; installed as conf/library/default.yaml. Searched at
     # 1e-4 s, half the closed loop's default step: open loop, a gait's speed depends more on the step
     # (the forward primitive: 30.9 / 31.6 / 32.1 mm/s at 2.5e-5 / 1e-4 / 2e-4 s with the exact implicit step).
     "gait_search_walk": ["experiment=gait_search", "plant=cosserat", "experiment.style=walk", "sim.dt=1e-4"],

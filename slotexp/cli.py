@@ -23,9 +23,9 @@ from typing import Any
 import typer
 
 from .config import validate
+from .configtree import CONF_DIR
 from .errors import UserError
 
-CONF_DIR = Path(__file__).resolve().parent / "conf"  # shipped with the package
 GROUPS = ("robot", "gait", "solver", "plant", "controller", "library", "experiment", "scenario", "actuation")
 HARDWARE_GROUPS = ("robot", "gait", "solver", "actuation", "plant", "controller", "library", "hardware", "odometry")
 HARDWARE_CONFIG = "hardware_config"
@@ -407,7 +407,7 @@ def _run_help() -> str:
     lines += [f"{keyed[g.name]}: {names(g)}" for g in groups if g.name in keyed]
     return (
         "Run an experiment. Arguments are Hydra overrides, e.g. experiment=perturb gait=walk solver=scs.\n\n"
-        + "Config groups and their choices (slotexp/conf/):\n\n"
+        + "Config groups and their choices (conf/):\n\n"
         + "\n\n".join(lines)
         + "\n\ncontroller=schedule plays one of the schedules (controller.schedule=<name>). Use -m for a "
         "multirun sweep (a,b,c values), --cfg job to print the composed config, hydra.run.dir=DIR to choose "

@@ -92,3 +92,15 @@ def test_wheel_install_runs_table1_outside_the_repo(installed: Path, tmp_path: P
     assert last_line(proc.stdout) == str(out)
     table = json.loads((out / "metrics.json").read_text())["table1"]
     assert [row["scenario"] for row in table] == ["baseline"] and table[0]["infeasible_steps"] == 0
+
+
+def test_the_wheel_lists_every_package_and_maps_the_config_tree() -> None:
+    # pyproject.toml names the packages one by one (slotexp.conf comes from conf/ at the top of the repo): a new
+    # subpackage left out of the list would be missing from the wheel
+    import tomllib
+
+    tool = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    found = {".".join(p.parent.relative_to(REPO).parts) for p in (REPO / "slotexp").rglob("__init__.py")}
+    assert set(tool["packages"]) == found | {"slotexp.conf"}
+    assert tool["package-dir"] == {"slotexp.conf": "conf"} and (REPO / "conf" / "config.yaml").is_file()
+    assert not (REPO / "slotexp" / "conf").exists()  # one config tree, at the top

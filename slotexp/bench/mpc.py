@@ -26,6 +26,7 @@ from ..atomic import write_text
 from ..backends import BACKENDS, make_mpc
 from ..backends._base import single_threaded_blas
 from ..config import SlotConfig, SolverConfig
+from ..configtree import CONF_DIR
 from ..controllers.paper import PaperController
 from ..figures.style import new_figure, save
 from ..plants import ForceCommand, nominal_state
@@ -38,7 +39,7 @@ DURATION_S = 10.0
 PASSES = 2
 BASELINE = "scs"  # the paper's stack: CVXPY + SCS
 REFERENCE = "clarabel"  # objective agreement is reported against it
-CONF_SOLVER = Path(__file__).resolve().parents[1] / "conf" / "solver"
+CONF_SOLVER = CONF_DIR / "solver"
 
 
 def record_problems(cfg: SlotConfig, scenario: str = SCENARIO, duration: float = DURATION_S) -> list[tuple]:
