@@ -24,7 +24,7 @@ import typer
 
 from .config import validate
 from .configtree import CONF_DIR
-from .errors import UserError
+from .errors import UserError, missing_extra
 
 GROUPS = ("robot", "gait", "solver", "plant", "controller", "library", "experiment", "scenario", "actuation")
 HARDWARE_GROUPS = ("robot", "gait", "solver", "actuation", "plant", "controller", "library", "hardware", "odometry")
@@ -355,6 +355,14 @@ def _compose_message(exc: BaseException) -> str:
     return text.replace("Error merging override ", "bad override ")
 
 
+def _fail_on_missing_extra(exc: ModuleNotFoundError) -> None:
+    """One line naming the extra that installs a missing optional dependency; any other import error is a bug."""
+    extra = missing_extra(exc)
+    if extra is None:
+        raise exc
+    fail(str(extra))
+
+
 def _hydra_task(cfg) -> None:
     """What Hydra runs for each job: check, run the experiment, print the output dir last."""
     from hydra.core.hydra_config import HydraConfig
@@ -377,6 +385,8 @@ def _hydra_task(cfg) -> None:
         typer.echo(f"done in {time.monotonic() - started:.0f} s; outputs in:")
     except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+    except ModuleNotFoundError as exc:
+        _fail_on_missing_extra(exc)
     except KeyboardInterrupt as exc:
         signum, word = _stopped_by(exc)
         typer.echo(f"{word}: the logs written so far are valid and readable in {out_dir}", err=True)
@@ -473,6 +483,8 @@ def _hardware_task(cfg) -> None:
         result = run_hardware(hw_cfg, out_dir, OmegaConf.to_yaml(cfg), lambda m: typer.echo(m, err=True), git_commit())
     except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+    except ModuleNotFoundError as exc:
+        _fail_on_missing_extra(exc)
     if result.outcome is not None and result.outcome.steps >= 2:
         from .hardware.report import report
 
@@ -695,6 +707,8 @@ def main() -> None:
         signal.signal(signal.SIGTERM, _terminate)
     try:
         app()
+    except ModuleNotFoundError as exc:  # outside a Hydra job (slot bench rigid, ...)
+        _fail_on_missing_extra(exc)
     except KeyboardInterrupt as exc:
         signum, word = _stopped_by(exc)
         typer.echo(word, err=True)

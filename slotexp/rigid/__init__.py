@@ -17,7 +17,8 @@ def model_path(cfg: RigidConfig) -> Path:
     spec = importlib.util.find_spec(cfg.package)
     if spec is None or not spec.submodule_search_locations:
         raise ConfigError(
-            f"robot.rigid.package = {cfg.package!r} is not installed: pip install it (pyproject.toml lists it)"
+            f"robot.rigid.package = {cfg.package!r} is not installed: the robots of plant=rigid come with "
+            "slotexp's [rigid] extra (pip install 'slotexp[rigid]'; make installs every extra)"
         )
     root = Path(list(spec.submodule_search_locations)[0]) / "robot_model"
     path = root / cfg.model
