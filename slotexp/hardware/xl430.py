@@ -25,7 +25,7 @@ PROTOCOL = 2.0
 CONTROL_TABLE: dict[str, tuple[int, int]] = {
     # EEPROM area: writable only while Torque_Enable = 0
     "Model_Number": (0, 2),  # R;  1060 for the XL430-W250
-    "ID": (7, 1),  # RW; 0-252 (set once in Dynamixel Wizard, see README)
+    "ID": (7, 1),  # RW; 0-252 (set once in Dynamixel Wizard, see docs/hardware.md)
     "Baud_Rate": (8, 1),  # RW; 3 = 1 Mbps (set once in Dynamixel Wizard)
     "Return_Delay_Time": (9, 1),  # RW; 2 us units (set once in Dynamixel Wizard)
     "Operating_Mode": (11, 1),  # RW; 3 = position control

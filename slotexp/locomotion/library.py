@@ -89,7 +89,7 @@ class GaitLibrary:
         if len(kept) < 2:
             raise ConfigError(
                 "the gait library needs translating primitives in at least two directions: "
-                "run slot run experiment=gait_search (see the README)"
+                "run slot run experiment=gait_search (docs/soft.md)"
             )
         self.translation = self._aligned(sorted(kept, key=lambda p: p.heading_deg), kept[0], style, top_deg)
         measured = {p.name: p for p in kept}
