@@ -380,9 +380,11 @@ def _hydra_task(cfg) -> None:
             typer.echo(f"warning: {warning}", err=True)
         started = time.monotonic()
         run_experiment(checked, out_dir, OmegaConf.to_yaml(cfg))
+        summary = []
         if experiment.summary is not None and (out_dir / experiment.summary).is_file():
-            typer.echo((out_dir / experiment.summary).read_text().rstrip())
-        typer.echo(f"done in {time.monotonic() - started:.0f} s; outputs in:")
+            summary.append((out_dir / experiment.summary).read_text().rstrip())
+        _say(*summary, f"done in {time.monotonic() - started:.0f} s; outputs in:", str(out_dir), out_dir=out_dir)
+        return
     except UserError as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except ModuleNotFoundError as exc:
@@ -398,7 +400,24 @@ def _hydra_task(cfg) -> None:
             sys.stderr.flush()
             os._exit(128 + signum)
         raise SystemExit(128 + signum) from None
-    typer.echo(str(out_dir))
+
+
+def _say(*lines: str, out_dir: Path | None = None) -> None:
+    """Print a command's result on stdout. A reader that closed it (``| head -1``) gets what it read; the
+    rest is dropped, and one line on stderr says where the outputs are (they are complete)."""
+    try:
+        for line in lines:
+            typer.echo(line)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _closed_stdout(out_dir)
+
+
+def _closed_stdout(out_dir: Path | None) -> None:
+    # later writes (and the interpreter's last flush) go nowhere instead of raising again
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    where = f": its outputs are complete in {out_dir}" if out_dir is not None else ""
+    fail(f"stdout was closed before the command's last lines{where}")
 
 
 def _run_help() -> str:
@@ -495,7 +514,7 @@ def _hardware_task(cfg) -> None:
     if result.message:
         prefix = "error: " if result.exit_code not in (0, 130, 143) else ""
         typer.echo(f"{prefix}{result.message}", err=True)
-    typer.echo(str(out_dir))
+    _say(str(out_dir), out_dir=out_dir)
     if result.exit_code:
         raise SystemExit(result.exit_code)
 
@@ -590,7 +609,7 @@ def bench(
     for r in rows:
         table.add_row(r.component, r.variant, f"{r.median_us:.4g}", f"{r.p99_us:.4g}", f"{r.ratio_vs_baseline:.3g}")
     Console(stderr=True).print(table)
-    typer.echo(str(out_dir.resolve()))
+    _say(str(out_dir.resolve()))
 
 
 @app.command()
@@ -644,7 +663,7 @@ def figures(
                 )
     except UserError as exc:
         fail(str(exc))
-    typer.echo(str(run_dir))
+    _say(str(run_dir))
 
 
 @app.command()
@@ -667,7 +686,7 @@ def layout(
         write_text(out, SHIPPED.read_text())
     except OSError as exc:
         fail(f"{out}: cannot write the layout ({exc.strerror or exc})")
-    typer.echo(str(out))
+    _say(str(out))
 
 
 @app.command()
@@ -681,7 +700,7 @@ def summarize(
         summarize_sweep(multirun_dir)
     except UserError as exc:
         fail(str(exc).splitlines()[0])
-    typer.echo(str(multirun_dir))
+    _say(str(multirun_dir))
 
 
 _received: list[int] = []  # stop signals this process has taken (a launcher may re-raise them as plain Ctrl-C)
@@ -709,6 +728,8 @@ def main() -> None:
         app()
     except ModuleNotFoundError as exc:  # outside a Hydra job (slot bench rigid, ...)
         _fail_on_missing_extra(exc)
+    except BrokenPipeError:  # outside a Hydra job (slot figures, summarize, bench, ... | head)
+        _closed_stdout(None)
     except KeyboardInterrupt as exc:
         signum, word = _stopped_by(exc)
         typer.echo(word, err=True)

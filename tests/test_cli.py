@@ -841,3 +841,33 @@ def test_every_optional_dependency_maps_to_an_extra_that_pyproject_declares() ->
         error = missing_extra(ModuleNotFoundError(f"No module named {module!r}", name=f"{module}.sub"))
         assert error is not None and f"[{extra}]" in str(error) and "\n" not in str(error)
     assert missing_extra(ModuleNotFoundError("No module named 'numpy'", name="numpy")) is None  # a real bug
+
+
+def test_a_closed_stdout_ends_in_one_line_and_the_run_is_complete(tmp_path: Path) -> None:
+    # stdout's reader gone before the run's last lines (as in `slot run ... | head -0`): one line on stderr
+    # naming where the outputs are, exit 2, no traceback; the run's outputs are all there
+    def closed(*args: str) -> tuple[int, str]:
+        proc = subprocess.Popen(
+            [*SLOT_CMD, *args], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        proc.stdout.close()  # the reader goes away at once
+        err = proc.stderr.read()
+        return proc.wait(timeout=120), err
+
+    run_dir = tmp_path / "run"
+    code, err = closed(
+        "run", "experiment=perturb", "experiment.duration=0.3", "experiment.scenarios=[baseline]",
+        f"hydra.run.dir={run_dir}",
+    )  # fmt: skip
+    lines = [ln for ln in err.splitlines() if ln.startswith("error") or "Traceback" in ln]
+    assert code == 2 and lines == [
+        f"error: stdout was closed before the command's last lines: its outputs are complete in {run_dir}"
+    ]
+    assert (run_dir / "table1.md").is_file() and (run_dir / "metrics.json").is_file()
+    assert read_log(run_dir / "logs" / "baseline.mcap")["/state"].shape[0] > 0
+    code, err = closed("figures", str(run_dir))  # a command outside Hydra
+    assert (
+        code == 2
+        and "Traceback" not in err
+        and err.strip().splitlines() == ["error: stdout was closed before the command's last lines"]
+    )
