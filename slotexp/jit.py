@@ -14,7 +14,9 @@ through those modules' kernels. So:
   recompiles nothing;
 - the cache stays where numba keeps it (``__pycache__`` beside the source, or
   numba's user-wide cache, or ``NUMBA_CACHE_DIR`` when set), and other libraries'
-  kernels are left alone: the locator below only takes functions compiled here.
+  kernels are left alone: the locator below only takes functions compiled here;
+- where none of those can be written (a read-only install and home), the kernels are
+  cached under the system's temporary directory instead of failing to compile.
 
 The locators extend numba's own (``numba.core.caching``), inserted ahead of them in
 its list of locator classes; nothing is set in the environment.
@@ -25,6 +27,8 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
+import os
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -162,10 +166,22 @@ class _UserWide(_KeyedStamp, UserWideCacheLocator):
     pass
 
 
+class _TempDir(_UserWide):
+    """The last resort, where neither the source's ``__pycache__`` nor numba's user-wide cache can be written
+    (a read-only install and a read-only home): the system's temporary directory, per user. Without it numba
+    refuses to compile a cached kernel at all ("no locator available")."""
+
+    def __init__(self, py_func: Callable, py_file: str) -> None:
+        super().__init__(py_func, py_file)
+        root = Path(tempfile.gettempdir()) / f"slotexp-numba-{os.getuid() if hasattr(os, 'getuid') else 'user'}"
+        self._cache_path = str(root / self.get_suitable_cache_subpath(py_file))
+
+
 def _install() -> None:
     locators = CacheImpl._locator_classes
     if _InTree not in locators:
-        locators[0:0] = [_UserProvided, _InTree, _UserWide]  # numba's own order: NUMBA_CACHE_DIR first
+        # numba's own order (NUMBA_CACHE_DIR first), then the temporary directory
+        locators[0:0] = [_UserProvided, _InTree, _UserWide, _TempDir]
 
 
 _install()

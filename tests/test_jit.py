@@ -87,3 +87,38 @@ def test_dependencies_are_what_the_kernels_use(tmp_path: Path) -> None:
     # the project's own: the soft plant's kernel depends on the rigid-body and leg kernels, not on the config
     deps = {p.name for p in kernel_dependencies(REPO / "slotexp" / "plants" / "cosserat.py")}
     assert "body.py" in deps and "config.py" not in deps and "cli.py" not in deps
+
+
+def test_a_kernel_compiles_and_caches_in_the_temporary_directory_when_nothing_else_is_writable(
+    tmp_path: Path,
+) -> None:
+    # A read-only install and a read-only home: the in-tree and user-wide caches cannot be written (made so
+    # here by numba's writability check failing there, since the tests may run as root, whom file modes do
+    # not stop). numba alone then refuses to compile a cached kernel ("no locator available"); slotexp's last
+    # locator caches it under the temporary directory.
+    _package(tmp_path, "from slotexp.jit import njit", 1)
+    script = textwrap.dedent("""
+        import sys, tempfile
+        tempfile.tempdir = sys.argv[1]
+        from numba.core import caching
+        import slotexp.jit
+        writable = caching._CacheLocator.ensure_cache_path
+        def ensure(self):  # nothing can be written but the temporary directory
+            if not self.get_cache_path().startswith(sys.argv[1]):
+                raise OSError(30, "Read-only file system")
+            writable(self)
+        caching._CacheLocator.ensure_cache_path = ensure
+        from pkgx.b import caller
+        print(caller(1))
+        """)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    for _ in range(2):  # compiled and cached, then loaded from the cache
+        proc = subprocess.run(
+            [sys.executable, "-c", script, str(tmp)], cwd=tmp_path, capture_output=True, text=True, timeout=120
+        )
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.split() == ["20"] and "NumbaWarning" not in proc.stderr
+    cached = list(tmp.glob("slotexp-numba-*/**/*.nbi"))
+    assert {p.name.split(".")[0] for p in cached} == {"a", "b"}
+    assert not list((tmp_path / "pkgx").glob("__pycache__/*.nbi"))  # nothing in the tree
