@@ -9,6 +9,7 @@ from inside a job.
 
 from __future__ import annotations
 
+import errno
 import itertools
 import logging
 import os
@@ -389,6 +390,8 @@ def _hydra_task(cfg) -> None:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except ModuleNotFoundError as exc:
         _fail_on_missing_extra(exc)
+    except OSError as exc:
+        _fail_on_storage(exc, out_dir)
     except KeyboardInterrupt as exc:
         signum, word = _stopped_by(exc)
         typer.echo(f"{word}: the logs written so far are valid and readable in {out_dir}", err=True)
@@ -400,6 +403,24 @@ def _hydra_task(cfg) -> None:
             sys.stderr.flush()
             os._exit(128 + signum)
         raise SystemExit(128 + signum) from None
+
+
+# the file system refusing a write: full, over quota, read-only, not permitted
+_STORAGE_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
+
+
+def _fail_on_storage(exc: OSError, out_dir: Path | None) -> None:
+    """One line for a write the file system refused (a full disk, a quota, a read-only mount); any other
+    OSError is a bug and keeps its traceback. What was written before it (the logs first) stays."""
+    if exc.errno not in _STORAGE_ERRORS:
+        raise exc
+    where = f"{exc.filename}: " if exc.filename else ""
+    kept = (
+        f"; what was written before it is in {out_dir} (slot figures rebuilds the rest from its logs)"
+        if out_dir
+        else ""
+    )
+    fail(f"{where}{exc.strerror or exc}: free space or write elsewhere (hydra.run.dir=...){kept}")
 
 
 def _say(*lines: str, out_dir: Path | None = None) -> None:
@@ -730,6 +751,8 @@ def main() -> None:
         _fail_on_missing_extra(exc)
     except BrokenPipeError:  # outside a Hydra job (slot figures, summarize, bench, ... | head)
         _closed_stdout(None)
+    except OSError as exc:  # outside a Hydra job: a table or figure the file system refused
+        _fail_on_storage(exc, None)
     except KeyboardInterrupt as exc:
         signum, word = _stopped_by(exc)
         typer.echo(word, err=True)

@@ -871,3 +871,35 @@ def test_a_closed_stdout_ends_in_one_line_and_the_run_is_complete(tmp_path: Path
         and "Traceback" not in err
         and err.strip().splitlines() == ["error: stdout was closed before the command's last lines"]
     )
+
+
+def test_a_full_disk_ends_in_one_line_and_keeps_what_was_written(tmp_path: Path) -> None:
+    # the file system refuses the run's tables (ENOSPC from every atomic write, as a full disk gives):
+    # one line naming the file and the run directory, exit 2, no traceback; the logs written before stay
+    import sys
+
+    code = (
+        "import errno, sys, contextlib, slotexp.atomic as atomic\n"
+        "@contextlib.contextmanager\n"
+        "def full(path):\n"
+        "    raise OSError(errno.ENOSPC, 'No space left on device', str(path))\n"
+        "    yield\n"
+        "atomic.replacing = full\n"
+        "sys.argv = ['slot', *sys.argv[1:]]\n"
+        "from slotexp.cli import main\n"
+        "main()\n"
+    )
+    run_dir = tmp_path / "run"
+    args = ["run", "experiment=perturb", "experiment.duration=0.3", "experiment.scenarios=[baseline]"]
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *args, f"hydra.run.dir={run_dir}"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("error")]  # after the progress bar
+    assert len(errors) == 1 and errors[0].startswith(f"error: {run_dir}/")  # the file it could not write
+    assert "No space left on device" in errors[0] and "slot figures" in errors[0]
+    assert read_log(run_dir / "logs" / "baseline.mcap")["/state"].shape[0] > 0
