@@ -57,6 +57,15 @@ def slot(*args: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedPro
     )
 
 
+def slot_after(prelude: str, *args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
+    """``slot <args>`` in a subprocess whose Python runs ``prelude`` first (to make a module unimportable or a
+    write fail, as a machine without an extra or with a full disk would)."""
+    code = f"{prelude}\nimport sys\nsys.argv = ['slot', *sys.argv[1:]]\nfrom slotexp.cli import main\nmain()\n"
+    return subprocess.run(
+        [sys.executable, "-c", code, *map(str, args)], cwd=cwd, capture_output=True, text=True, timeout=timeout
+    )
+
+
 def last_line(text: str) -> str:
     lines = [ln for ln in text.splitlines() if ln.strip()]
     assert lines, "nothing on stdout"

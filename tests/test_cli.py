@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 
 from slotexp.record import read_log
 from slotexp.sweepstop import child_processes
-from tests.helpers import CONF, SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot
+from tests.helpers import CONF, SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot, slot_after
 
 TABLE1_HEADER = ["scenario", "max_cost", "mean_cost", "final_cost", "settle_s", "infeasible_steps"]
 PERTURB_SCENARIOS = ["baseline", "height"]
@@ -811,20 +811,8 @@ def test_a_missing_optional_dependency_names_its_extra_in_one_line(
     tmp_path: Path, module: str, extra: str, args: list[str]
 ) -> None:
     # the optional dependency made unimportable (None in sys.modules), then the real CLI
-    import sys
-
-    code = (
-        f"import sys; sys.modules[{module!r}] = None; sys.argv = ['slot', *sys.argv[1:]]; "
-        "from slotexp.cli import main; main()"
-    )
-    run_dir = tmp_path / "run"
-    proc = subprocess.run(
-        [sys.executable, "-c", code, *args, f"hydra.run.dir={run_dir}"],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    prelude = f"import sys; sys.modules[{module!r}] = None"
+    proc = slot_after(prelude, *args, f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
     assert_one_line_error(proc, module, f"[{extra}]", f"pip install 'slotexp[{extra}]'")
 
 
@@ -876,28 +864,17 @@ def test_a_closed_stdout_ends_in_one_line_and_the_run_is_complete(tmp_path: Path
 def test_a_full_disk_ends_in_one_line_and_keeps_what_was_written(tmp_path: Path) -> None:
     # the file system refuses the run's tables (ENOSPC from every atomic write, as a full disk gives):
     # one line naming the file and the run directory, exit 2, no traceback; the logs written before stay
-    import sys
-
-    code = (
-        "import errno, sys, contextlib, slotexp.atomic as atomic\n"
+    prelude = (
+        "import errno, contextlib, slotexp.atomic as atomic\n"
         "@contextlib.contextmanager\n"
         "def full(path):\n"
         "    raise OSError(errno.ENOSPC, 'No space left on device', str(path))\n"
         "    yield\n"
-        "atomic.replacing = full\n"
-        "sys.argv = ['slot', *sys.argv[1:]]\n"
-        "from slotexp.cli import main\n"
-        "main()\n"
+        "atomic.replacing = full"
     )
     run_dir = tmp_path / "run"
     args = ["run", "experiment=perturb", "experiment.duration=0.3", "experiment.scenarios=[baseline]"]
-    proc = subprocess.run(
-        [sys.executable, "-c", code, *args, f"hydra.run.dir={run_dir}"],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    proc = slot_after(prelude, *args, f"hydra.run.dir={run_dir}", cwd=tmp_path)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("error")]  # after the progress bar
     assert len(errors) == 1 and errors[0].startswith(f"error: {run_dir}/")  # the file it could not write
