@@ -101,6 +101,7 @@ def test_the_wheel_lists_every_package_and_maps_the_config_tree() -> None:
 
     tool = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
     found = {".".join(p.parent.relative_to(REPO).parts) for p in (REPO / "slotexp").rglob("__init__.py")}
-    assert set(tool["packages"]) == found | {"slotexp.conf"}
+    groups = {f"slotexp.conf.{d.name}" for d in (REPO / "conf").iterdir() if d.is_dir()}
+    assert set(tool["packages"]) == found | {"slotexp.conf"} | groups
     assert tool["package-dir"] == {"slotexp.conf": "conf"} and (REPO / "conf" / "config.yaml").is_file()
     assert not (REPO / "slotexp" / "conf").exists()  # one config tree, at the top
