@@ -427,7 +427,7 @@ class SceneEncoder:
         _fill_scene(
             layout.buffer,
             layout.slots,
-            frame.position,
+            frame.position if frame.box_centre is None else frame.box_centre,
             frame.quaternion_wxyz,
             frame.torso_size,
             frame.legs,

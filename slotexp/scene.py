@@ -48,6 +48,7 @@ class SceneFrame:
     actual_path: np.ndarray  # (K, 3)
     feet: np.ndarray  # (4, 3) where the forces act
     footholds: np.ndarray | None = None  # (4, 3) where the controller plans to put each foot; None: it plans none
+    box_centre: np.ndarray | None = None  # the torso box's centre (3,), where the cube is drawn; None: ``position``
 
 
 @njit(cache=True)
@@ -146,9 +147,12 @@ class SceneTrack:
         torso_size: Sequence[float],
         spacing: float = PATH_SPACING_M,
         max_points: int = PATH_MAX_POINTS,
+        com_offset: Sequence[float] = (0.0, 0.0),
     ) -> None:
         self.leg_names = tuple(leg_names)
         self.torso_size = np.asarray(torso_size, dtype=float)
+        # the mass centre (the pose's position) from the box's centre, body frame (robot.torso.com_offset)
+        self.com_offset = np.array([*com_offset, 0.0][:3], dtype=float)
         self._reference = _Path(spacing, max_points)
         self._actual = _Path(spacing, max_points)
 
@@ -167,9 +171,13 @@ class SceneTrack:
         legs = np.asarray(legs, dtype=float)
         feet = legs[:, -1, :]
         forces = np.asarray(forces, dtype=float)
+        position = np.asarray(position, dtype=float)
+        centre = position
+        if self.com_offset.any():  # the box is drawn about its own centre, not the mass centre
+            centre = position - quat_to_rot(np.asarray(quaternion_wxyz, dtype=float)) @ self.com_offset
         return SceneFrame(
             t=float(t),
-            position=np.asarray(position, dtype=float),
+            position=position,
             quaternion_wxyz=np.asarray(quaternion_wxyz, dtype=float),
             torso_size=self.torso_size,
             leg_names=self.leg_names,
@@ -180,6 +188,7 @@ class SceneTrack:
             actual_path=self._actual.add(position),
             feet=feet,
             footholds=None if footholds is None else np.asarray(footholds, dtype=float),
+            box_centre=centre,
         )
 
 

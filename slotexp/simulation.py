@@ -59,11 +59,12 @@ class Tee:
             s.write_scene(frame)
 
 
-def scene_track(sink: Sink | None, legs: list[str], torso_size: Any) -> SceneTrack | None:
-    """A scene builder when ``sink`` draws scenes (has ``write_scene``); None for numbers-only sinks."""
+def scene_track(sink: Sink | None, legs: list[str], torso: Any) -> SceneTrack | None:
+    """A scene builder when ``sink`` draws scenes (has ``write_scene``); None for numbers-only sinks. ``torso``:
+    ``robot.torso`` (its box's size, and its mass centre's offset in the box)."""
     if sink is None or not callable(getattr(sink, "write_scene", None)):
         return None
-    return SceneTrack(legs, torso_size)
+    return SceneTrack(legs, torso.size, com_offset=torso.com_offset)
 
 
 @dataclass
@@ -151,7 +152,7 @@ def run_closed_loop(
     started = time.perf_counter()
     done = 0
     origin = x0[3:5].copy()  # the desired path starts where the robot does
-    scene = scene_track(sink, names, cfg.robot.torso.size)
+    scene = scene_track(sink, names, cfg.robot.torso)
     with interrupts_between_steps() as check_interrupt:
         for k in range(n_steps):
             check_interrupt()

@@ -70,7 +70,10 @@ def scene_update(frame: SceneFrame) -> SceneUpdate:
         return _entity(frame.t, id, **primitives)
 
     cube = CubePrimitive(
-        pose=Pose(position=_v(frame.position), orientation=_q_wxyz(frame.quaternion_wxyz)),
+        pose=Pose(
+            position=_v(frame.position if frame.box_centre is None else frame.box_centre),
+            orientation=_q_wxyz(frame.quaternion_wxyz),
+        ),
         size=_v(frame.torso_size),
         color=_color(fs.TORSO_COLOR),
     )

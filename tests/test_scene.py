@@ -368,3 +368,23 @@ def test_the_live_view_waits_for_a_viewer_then_paces_the_run_and_lingers() -> No
             assert done["t"] - started >= (steps - 1) * dt / pace * 0.9  # paced, not flat out
         closing = time.monotonic()
     assert time.monotonic() - closing >= 0.45  # it lingered for the viewer
+
+
+def test_the_torso_box_is_drawn_about_its_own_centre_not_the_mass_centre() -> None:
+    # robot.torso.com_offset puts the mass centre (the pose) 15 mm behind the box's centre: turned 90 deg
+    # left, the box's centre is 15 mm to the world's +y of the pose, in the scene's cube and the GIF's box
+    from slotexp.figures.animation import _box
+
+    yaw = np.array([np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])
+    pose = np.array([1.0, 2.0, 0.04])
+    track = SceneTrack(LEGS, [0.1255, 0.0855, 0.034], com_offset=[-0.015, 0.0])
+    frame = track.frame(0.0, pose, yaw, pose, np.zeros((4, 3, 3)), np.ones((4, 3)))
+    np.testing.assert_allclose(frame.box_centre, [1.0, 2.015, 0.04], atol=1e-12)
+    np.testing.assert_allclose(frame.position, pose)  # the pose itself (paths, transforms) is the mass centre
+    scene_cls = message_class("foxglove.SceneUpdate", schemas()[SCENE_TOPIC].data)
+    cube = scene_cls.FromString(SceneEncoder().messages(frame)[0][1]).entities[0].cubes[0]
+    assert [cube.pose.position.x, cube.pose.position.y, cube.pose.position.z] == pytest.approx([1.0, 2.015, 0.04])
+    corners = _box(pose, yaw, np.array([0.1255, 0.0855, 0.034]), np.array([-0.015, 0.0, 0.0]))
+    np.testing.assert_allclose(corners.mean(axis=0), [1.0, 2.015, 0.04], atol=1e-12)
+    plain = SceneTrack(LEGS, [0.1255, 0.0855, 0.034]).frame(0.0, pose, yaw, pose, np.zeros((4, 3, 3)), np.ones((4, 3)))
+    np.testing.assert_allclose(plain.box_centre, pose)

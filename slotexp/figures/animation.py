@@ -15,9 +15,11 @@ from .style import LEG_COLOURS, new_figure
 BOX_EDGES = [(0, 1), (1, 3), (3, 2), (2, 0), (4, 5), (5, 7), (7, 6), (6, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
 
 
-def _box(position: np.ndarray, quat: np.ndarray, size: np.ndarray) -> np.ndarray:
+def _box(position: np.ndarray, quat: np.ndarray, size: np.ndarray, com_offset: np.ndarray) -> np.ndarray:
+    """The torso box's corners: about its own centre, ``com_offset`` (body frame) from the mass centre at
+    ``position``."""
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size / 2
-    return position + corners @ quat_to_rot(quat).T
+    return position + (corners - com_offset) @ quat_to_rot(quat).T
 
 
 def animate(
@@ -29,8 +31,11 @@ def animate(
     path: str | Path,
     fps: int = 10,
     title: str = "",
+    com_offset: np.ndarray | None = None,
 ) -> Path:
-    """``legs[name]`` is (frames, N, 3) in the world frame; one frame per entry of ``t``."""
+    """``legs[name]`` is (frames, N, 3) in the world frame; one frame per entry of ``t``; ``positions`` are the
+    torso's mass centre, ``com_offset`` (body frame, horizontal) where it sits from the box's centre."""
+    offset = np.zeros(3) if com_offset is None else np.array([*com_offset, 0.0][:3], dtype=float)
     fig = new_figure(9, 4.2)
     side, top = fig.subplots(1, 2)
     everything = np.concatenate([v.reshape(-1, 3) for v in legs.values()] + [positions])
@@ -57,7 +62,7 @@ def animate(
     label = fig.suptitle("", fontsize=9)
 
     def draw(k: int):
-        box = _box(positions[k], quats[k], torso_size)
+        box = _box(positions[k], quats[k], torso_size, offset)
         for line_s, line_t, (a, b) in zip(box_side, box_top, BOX_EDGES):
             line_s.set_data(box[[a, b], 0], box[[a, b], 2])
             line_t.set_data(box[[a, b], 0], box[[a, b], 1])
@@ -115,4 +120,5 @@ def animate_log(log_path: str | Path, out: str | Path, seconds: float = 8.0, fps
         out,
         fps,
         title=f"{run.get('gait', '')} gait, {run.get('plant', '')} plant",
+        com_offset=np.asarray(conf["robot"]["torso"].get("com_offset", [0.0, 0.0]), dtype=float),
     )

@@ -101,7 +101,7 @@ def run_loop(
     n_max = None if duration is None else int(round(duration * rate_hz))
     names = list(robot.names)
     q_diag = np.asarray(cfg.mpc.q_diag, dtype=float)
-    scene = scene_track(sink, names, cfg.robot.torso.size)
+    scene = scene_track(sink, names, cfg.robot.torso)
     outcome = outcome if outcome is not None else LoopOutcome.empty(rate_hz)
     stats = outcome.stats
     sched = Deadlines(period, clock, sleep)
