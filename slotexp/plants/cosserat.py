@@ -262,12 +262,11 @@ def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly):
         return
     mu, v_eps = par[2], par[3]
     fx, fy = coulomb_friction(vx, vy, nrm, mu, v_eps)
-    # the friction's slope in the floor's plane: its secant, as the legs' (friction_slope)
-    cxx = cyy = friction_slope(vx, vy, nrm, mu, v_eps)
-    cxy = 0.0
+    # the friction's slope in the floor's plane: its secant, alike in every direction, as the legs' (friction_slope)
+    c = friction_slope(vx, vy, nrm, mu, v_eps)
     # the point's horizontal velocity is J (v, w): rows jx = (1, 0, 0, 0, r2, -r1), jy = (0, 1, 0, -r2, 0, r0)
-    gx = fx + cxx * vx + cxy * vy  # F0 + C v, so that load - C xi_new is the friction at the new velocity
-    gy = fy + cxy * vx + cyy * vy
+    gx = fx + c * vx  # F0 + C v, so that load - C xi_new is the friction at the new velocity
+    gy = fy + c * vy
     load[0] += gx
     load[1] += gy
     load[2] += nrm
@@ -278,7 +277,7 @@ def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly):
     jy = (0.0, 1.0, 0.0, -r2, 0.0, r0)
     for a in range(6):
         for b in range(a, 6):
-            damp[a, b] += h * (cxx * jx[a] * jx[b] + cxy * (jx[a] * jy[b] + jy[a] * jx[b]) + cyy * jy[a] * jy[b])
+            damp[a, b] += h * (c * jx[a] * jx[b] + c * jy[a] * jy[b])
     belly[0] += nrm
     belly[1] += fx
     belly[2] += fy
