@@ -14,8 +14,10 @@ import yaml
 from slotexp.errors import ConfigError
 from slotexp.jobs.identify import (
     ParameterSpec,
+    load_observations,
     read_track,
     report,
+    residuals,
     run,
     setting,
     to_unit,
@@ -101,6 +103,30 @@ def test_identification_recovers_a_known_horn_zero_from_the_models_own_noisy_obs
     pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "spread.csv"), spread)
 
 
+def test_the_torso_height_is_an_observation_of_every_gait_from_the_config_or_the_table(tmp_path: Path):
+    # experiment.height_mm holds every gait's mean torso height to a number; a CSV's height_mm column per gait
+    args = ("plant=cosserat", "experiment=identify", "experiment.schedules=[forward,crawl_forward]")
+    cfg = load(*args)
+    gaits = {
+        g: {"compass_deg": 10.0, "distance_per_cycle_mm": 20.0, "height_mm": 55.0} for g in cfg.experiment.schedules
+    }
+    result = {"gaits": gaits}
+    assert "height_mm" not in set(residuals(cfg, load_observations(cfg, "robot", {}), result)["observation"])
+    held = load(*args, "experiment.height_mm=40", "experiment.height_sigma_mm=5")
+    table = residuals(held, load_observations(held, "robot", {}), result)
+    rows = table[table["observation"] == "height_mm"]
+    assert list(rows["gait"]) == ["forward", "crawl_forward"]
+    np.testing.assert_allclose(rows["residual"], (55.0 - 40.0) / 5.0)
+    csv = tmp_path / "obs.csv"
+    csv.write_text("gait,compass_deg,distance_per_cycle_mm,height_mm\nforward,0,50,42\ncrawl_forward,0,40,\n")
+    table = residuals(held, load_observations(held, str(csv), {}), result)
+    rows = table[table["observation"] == "height_mm"]
+    assert list(rows["gait"]) == ["forward"] and rows["observed"].iloc[0] == 42.0  # a blank: not observed
+    csv.write_text("gait,compass_deg,distance_per_cycle_mm\nforward,0,50\n")  # no column: the config's height
+    rows = residuals(held, load_observations(held, str(csv), {}), result).query("observation == 'height_mm'")
+    assert list(rows["observed"]) == [40.0]
+
+
 def test_a_dask_cluster_and_local_processes_evaluate_the_same_candidates(tmp_path: Path):
     # The engine is a setting: a real local Dask cluster (two worker processes) gives the in-process results.
     pytest.importorskip("distributed")
@@ -130,6 +156,7 @@ def _power(task: tuple[int, float]) -> float:
         ("experiment.parameters=[{path: robot.leg.names, lo: 0.1, hi: 1}]", ["not a numeric setting"]),
         ("experiment.observations=/nonexistent.csv", ["neither 'robot' nor a CSV"]),
         ("experiment.parallel.address=tcp://localhost:1", ["engine=dask"]),
+        ("experiment.height_mm=-40", ["height_mm = -40", "mm above the floor"]),
         ("experiment.schedules=[forward,walk_60]", ["walk_60", "held-out"]),
     ],
 )

@@ -10,7 +10,9 @@ matches the observations:
 - a table of per-gait displacements (``experiment.observations``: ``robot``, the
   schedules' own evidence in ``conf/schedule/`` (the robot's compass heading, distance
   per cycle where given), or a CSV ``gait,compass_deg,distance_per_cycle_mm`` with
-  blanks where a gait has no figure);
+  blanks where a gait has no figure, and optionally ``height_mm``);
+- the torso's mean height while it walks (``experiment.height_mm``, every gait; or the
+  CSV's ``height_mm``): a fit that matches the distances on stilts is not the robot;
 - marker tracks (``experiment.tracks``: gait -> a marker CSV or ``.mcap`` in the formats
   of ``experiment=validate``): the ``com`` marker's track, cycle by cycle (its displacement
   over each whole gait cycle and its mean height, :func:`cycle_features`).
@@ -96,6 +98,10 @@ class IdentifyExperiment:
     rate_hz: float = num_field(50.0, lo=1.0, hi=1000.0, unit="Hz")
     profile_velocity_rpm: float = num_field(0.0, lo=0.0, hi=61.0, unit="rpm")  # the robot's gait code: none
     heading_sigma_deg: float = num_field(15.0, lo=0.0, lo_open=True, unit="deg")
+    # the torso's mean height over the measured cycles, observed for every gait (e.g. 40: the paper's walking
+    # height p_z* = 0.04 m); None: not observed (a CSV's height_mm column gives it per gait instead)
+    height_mm: float | None = None
+    height_sigma_mm: float = num_field(10.0, lo=0.0, lo_open=True, unit="mm")
     distance_sigma: float = num_field(0.2, lo=0.0, unit="")  # relative, on distances per cycle ...
     distance_sigma_mm: float = num_field(1.0, lo=0.0, unit="mm")  # ... in quadrature with this floor
     track_sigma_mm: float = num_field(2.0, lo=0.0, lo_open=True, unit="mm")  # on a track's per-cycle RMS per axis
@@ -152,7 +158,11 @@ class IdentifyExperiment:
                     raise ConfigError(
                         f"experiment.synthetic.truth: {p.path} = {v:g} is outside its range [{p.lo:g}, {p.hi:g}]"
                     )
-        elif self.observations != "robot" and not Path(self.observations).expanduser().is_file():
+        if self.height_mm is not None and not 0.0 < self.height_mm < 1000.0:
+            raise ConfigError(
+                f"experiment.height_mm = {self.height_mm:g} is not a torso height: give mm above the floor"
+            )
+        if truth is None and self.observations != "robot" and not Path(self.observations).expanduser().is_file():
             raise ConfigError(
                 f"experiment.observations = {self.observations!r} is neither 'robot' nor a CSV file: "
                 "give the path of gait,compass_deg,distance_per_cycle_mm"
@@ -227,11 +237,15 @@ def evaluate(task: tuple[SlotConfig, list[str], float, float, float, int]) -> di
 class Observations:
     """What the fit is held to: per-gait heading and distance per cycle, and com tracks (displacements)."""
 
-    table: pd.DataFrame  # gait, compass_deg, distance_per_cycle_mm (NaN: not observed)
+    table: pd.DataFrame  # gait, compass_deg, distance_per_cycle_mm, height_mm (NaN: not observed)
     tracks: dict[str, tuple[np.ndarray, np.ndarray]]  # gait -> (t from 0, com displacement (n, 3) m)
 
 
+TABLE = ("gait", "compass_deg", "distance_per_cycle_mm", "height_mm")
+
+
 def robot_table(cfg: SlotConfig, names: list[str]) -> pd.DataFrame:
+    height = cfg.experiment.height_mm
     rows = []
     for name in names:
         s = cfg.schedules[name]
@@ -241,12 +255,13 @@ def robot_table(cfg: SlotConfig, names: list[str]) -> pd.DataFrame:
                 "gait": name,
                 "compass_deg": math.nan if s.heading_deg is None else float(s.heading_deg),
                 "distance_per_cycle_mm": math.nan if d is None else d * 1e3,
+                "height_mm": math.nan if height is None else float(height),
             }
         )
     return pd.DataFrame(rows)
 
 
-def read_table(path: Path, names: list[str]) -> pd.DataFrame:
+def read_table(path: Path, names: list[str], cfg_height: float = math.nan) -> pd.DataFrame:
     try:
         table = pd.read_csv(path, comment="#")
     except (OSError, ValueError) as exc:
@@ -256,8 +271,10 @@ def read_table(path: Path, names: list[str]) -> pd.DataFrame:
         raise UserError(
             f"{path}: no column(s) {', '.join(sorted(missing))}; the header is gait,compass_deg,distance_per_cycle_mm"
         )
+    if "height_mm" not in table.columns:  # optional: the torso's mean height while the gait walks
+        table["height_mm"] = cfg_height
     try:
-        table = table.astype({"gait": str, "compass_deg": float, "distance_per_cycle_mm": float})
+        table = table.astype({"gait": str, "compass_deg": float, "distance_per_cycle_mm": float, "height_mm": float})
     except ValueError as exc:
         raise UserError(
             f"{path}: a heading or distance is not a number ({exc}); leave a cell blank if unknown"
@@ -265,7 +282,7 @@ def read_table(path: Path, names: list[str]) -> pd.DataFrame:
     unknown = sorted(set(table["gait"]) - set(names))
     if unknown:
         raise UserError(f"{path}: gait(s) {', '.join(unknown)} are not in experiment.schedules: add them or drop them")
-    return table[["gait", "compass_deg", "distance_per_cycle_mm"]].reset_index(drop=True)
+    return table[list(TABLE)].reset_index(drop=True)
 
 
 def read_track(spec: str) -> tuple[np.ndarray, np.ndarray]:
@@ -311,6 +328,8 @@ def synthetic_observations(cfg: SlotConfig, out_dir: Path) -> tuple[Path, dict[s
                 "gait": name,
                 "compass_deg": (m["compass_deg"] + rng.normal(0.0, syn.noise_deg)) % 360.0,
                 "distance_per_cycle_mm": max(0.0, m["distance_per_cycle_mm"] + rng.normal(0.0, syn.noise_mm)),
+                # observed only where the fit is told to hold the height
+                "height_mm": math.nan if exp.height_mm is None else m["height_mm"] + rng.normal(0.0, syn.noise_mm),
             }
         )
         com = result["com"][name] + rng.normal(0.0, syn.noise_mm * 1e-3, result["com"][name].shape)
@@ -322,7 +341,11 @@ def synthetic_observations(cfg: SlotConfig, out_dir: Path) -> tuple[Path, dict[s
 
 def load_observations(cfg: SlotConfig, table_spec: str, track_specs: dict[str, str]) -> Observations:
     names = list(cfg.experiment.schedules)
-    table = robot_table(cfg, names) if table_spec == "robot" else read_table(Path(table_spec).expanduser(), names)
+    if table_spec == "robot":
+        table = robot_table(cfg, names)
+    else:
+        height = math.nan if cfg.experiment.height_mm is None else float(cfg.experiment.height_mm)
+        table = read_table(Path(table_spec).expanduser(), names, height)
     return Observations(table, {g: read_track(s) for g, s in track_specs.items()})
 
 
@@ -348,6 +371,9 @@ def residuals(cfg: SlotConfig, obs: Observations, result: dict) -> pd.DataFrame:
                     m["distance_per_cycle_mm"] - d,
                 )
             )
+        h = r["height_mm"]
+        if h == h:
+            rows.append(("height_mm", r["gait"], h, m["height_mm"], exp.height_sigma_mm, m["height_mm"] - h))
     for gait, (t_obs, com_obs) in obs.tracks.items():
         cycle = cycle_s(cfg.schedules[gait])
         com = result["com"][gait] - result["com"][gait][0]  # as the observed track: from its first sample
@@ -512,8 +538,8 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
     path = out_dir / "logs" / "identify.mcap"
     log = read_log(path)
     meta = log.metadata.get("observations", {})
-    table = pd.DataFrame(json.loads(meta.get("table", "[]")), columns=["gait", "compass_deg", "distance_per_cycle_mm"])
-    table = table.astype({"compass_deg": float, "distance_per_cycle_mm": float})
+    table = pd.DataFrame(json.loads(meta.get("table", "[]")), columns=list(TABLE))
+    table = table.astype({"compass_deg": float, "distance_per_cycle_mm": float, "height_mm": float})
     track_specs = json.loads(meta.get("tracks", "{}"))
     obs = Observations(table, {g: read_track(s) for g, s in track_specs.items()})
     names = list(exp.schedules)
