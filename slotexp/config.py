@@ -159,6 +159,12 @@ class ContactConfig:
     damping: float = num_field(10.0, lo=0.0, unit="N s/m")
     friction: float = num_field(0.1, lo=0.0, unit="")
     slip_velocity: float = num_field(1.0e-3, lo=0.0, lo_open=True, unit="m/s")  # friction regularisation
+    # the feet's friction at rest, above the sliding `friction` (a rubber-like pad holds more than it drags;
+    # slotexp.soft.loads.friction_coefficient); None: plain Coulomb friction. The torso's underside keeps plain.
+    static_friction: float | None = num_field(None, lo=0.0, unit="")
+    stribeck_velocity: float = num_field(
+        0.01, lo=0.0, lo_open=True, unit="m/s"
+    )  # the speed it falls to `friction` over
 
 
 @dataclass
@@ -611,6 +617,19 @@ def validate(cfg: SlotConfig) -> SlotConfig:
             f"gait.tendon_ramp + tendon_hold + tendon_decay = "
             f"{g.tendon_ramp + g.tendon_hold + g.tendon_decay:g}: they share one phase, keep it <= 1"
         )
+    contact = cfg.robot.contact
+    if contact.static_friction is not None:
+        if contact.static_friction < contact.friction:
+            raise ConfigError(
+                f"robot.contact.static_friction = {contact.static_friction:g} is below the sliding friction "
+                f"{contact.friction:g}: give static_friction >= friction (or null: plain Coulomb friction)"
+            )
+        symplectic = cfg.plant.name == "cosserat" and cfg.plant.integrator == "symplectic"
+        if symplectic or cfg.leg_load.integrator == "symplectic":
+            raise ConfigError(
+                "robot.contact.static_friction is a law of the implicit step only: drop it, or use "
+                "plant.integrator=implicit (and leg_load.integrator=implicit)"
+            )
     if leg.model == "paper" and cfg.plant.name == "cosserat" and cfg.plant.integrator != "symplectic":
         raise ConfigError(
             "robot.leg.model=paper has no Jacobian for the implicit step: add plant.integrator=symplectic sim.dt=2e-5"

@@ -30,6 +30,8 @@ def test_defaults_are_the_papers():
         ("gait.phases=[[3,1,2,1,1]]", "gait.phases[0]"),
         ("mpc.f_min_stance=7", "mpc.f_min_stance"),
         ("experiment.scenarios=[baseline,nope]", "experiment.scenarios"),
+        ("robot.contact.static_friction=0.05", "robot.contact.static_friction"),  # below the sliding 0.1
+        ("robot.contact.stribeck_velocity=0", "robot.contact.stribeck_velocity"),
     ],
 )
 def test_out_of_range_values_name_the_key(override, key):
@@ -37,6 +39,14 @@ def test_out_of_range_values_name_the_key(override, key):
         load(override)
     message = str(exc.value)
     assert key in message and "\n" not in message
+
+
+def test_static_friction_is_refused_where_the_symplectic_step_would_ignore_it():
+    with pytest.raises(ConfigError, match="implicit step only"):
+        load("plant=cosserat", "plant.integrator=symplectic", "robot.contact.static_friction=0.2")
+    with pytest.raises(ConfigError, match="implicit step only"):
+        load("leg_load.integrator=symplectic", "robot.contact.static_friction=0.2")
+    assert load("plant=cosserat", "robot.contact.static_friction=0.2").robot.contact.static_friction == 0.2
 
 
 def test_stage_cost_is_the_papers_weights_times_1000():

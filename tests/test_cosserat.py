@@ -8,7 +8,7 @@ from slotexp.locomotion.primitives import GaitStyle, Primitive
 from slotexp.plants import TendonCommand, nominal_state
 from slotexp.plants.cosserat import CosseratPlant
 from slotexp.robot import build_robot
-from slotexp.soft.loads import coulomb_friction
+from slotexp.soft.loads import coulomb_friction, friction_coefficient
 from slotexp.soft.params import O_F, O_N
 from slotexp.soft.servo import RPM_TO_RAD_S, servo_step
 from tests.helpers import load
@@ -108,21 +108,50 @@ def test_a_rigidly_spinning_robot_keeps_its_angular_momentum(axis):
         assert spin0[2] / 0.5 == pytest.approx(plant.inertia[2, 2] + 0.0037, rel=0.05)
 
 
-def test_friction_opposes_the_slip_and_never_exceeds_mu_n():
-    # One node: isotropic Coulomb friction, regularised below the slip velocity.
+@pytest.mark.parametrize("static", [None, 0.9])
+def test_friction_opposes_the_slip_and_never_exceeds_mu_n(static: float | None):
+    # One node: isotropic Coulomb friction, regularised below the slip velocity; with a static coefficient
+    # (0.9 over the sliding 0.6) the Gaussian Stribeck curve, mu_s at rest falling to mu over v_s = 10 mm/s.
     rng = np.random.default_rng(5)
-    mu, nrm, v_eps = 0.6, 2.5, 1e-3
+    mu, nrm, v_eps, v_s = 0.6, 2.5, 1e-3, 0.01
+    mu_s = mu if static is None else static
     for _ in range(2000):
         v = rng.normal(size=2) * 10.0 ** rng.uniform(-5, -1)
-        f = np.array(coulomb_friction(v[0], v[1], nrm, mu, v_eps))
+        f = np.array(coulomb_friction(v[0], v[1], nrm, mu, v_eps, mu_s, v_s))
         speed = np.linalg.norm(v)
-        assert np.linalg.norm(f) <= mu * nrm * (1 + 1e-12)
+        coefficient = mu + (mu_s - mu) * np.exp(-((speed / v_s) ** 2))
+        assert np.linalg.norm(f) <= mu_s * nrm * (1 + 1e-12)  # the cone at rest bounds it
         assert abs(f[0] * v[1] - f[1] * v[0]) <= 1e-12 * np.linalg.norm(f) * speed  # along the slip
         assert f @ v < 0.0  # against it
         if speed >= v_eps:
-            assert np.linalg.norm(f) == pytest.approx(mu * nrm, rel=1e-12)
+            assert np.linalg.norm(f) == pytest.approx(coefficient * nrm, rel=1e-12)
         else:
-            assert np.linalg.norm(f) == pytest.approx(mu * nrm * speed / v_eps, rel=1e-12)
+            assert np.linalg.norm(f) == pytest.approx(coefficient * nrm * speed / v_eps, rel=1e-12)
+    # plain friction is mu at every speed; the static one mu_s just above the slip velocity, mu far above v_s
+    speeds = np.geomspace(v_eps, 1.0, 50)
+    coefficients = [friction_coefficient(s, mu, mu_s, v_s) for s in speeds]
+    assert np.all(np.diff(coefficients) <= 0.0)
+    assert coefficients[0] == pytest.approx(mu_s, rel=0.02) and coefficients[-1] == pytest.approx(mu, rel=1e-12)
+
+
+def test_a_push_between_the_sliding_and_the_static_friction_slides_a_robot_only_without_static_friction():
+    # The pad's friction cone: standing on 80 deg tendons (weight W = 21.2 N) and pushed sideways with 3.5 N,
+    # above mu W = 2.1 N at mu = 0.1 and below mu_s W = 5.3 N at mu_s = 0.25. With plain friction the robot
+    # slides off; with the static coefficient its feet hold, to the regularisation's creep (the push over
+    # mu_s W, times v_eps: about 0.7 mm/s). The push rises over 1 s: a step load on the soft legs overshoots
+    # (to twice the push, undamped) and would break the feet loose, after which they slide at mu.
+    shift = {}
+    for static in ("null", "0.25"):
+        _, plant = _plant(f"robot.contact.static_friction={static}")
+        for _ in range(15):
+            plant.step(TendonCommand(np.full(4, 80.0)), 1 / 30)
+        y0 = plant.torso[1]
+        for k in range(60):
+            push = np.array([0.0, 3.5 * min(1.0, (k + 1) / 30), 0.0])
+            plant.step(TendonCommand(np.full(4, 80.0)), 1 / 30, external_force=push)
+        shift[static] = plant.torso[1] - y0
+    assert shift["null"] > 0.05  # measured 482 mm
+    assert 0.0 < shift["0.25"] < 5e-3  # measured 1.6 mm, and 1.6 mm at 5e-5 s
 
 
 def test_a_sliding_robot_is_braked_by_at_most_mu_m_g_against_its_slip():

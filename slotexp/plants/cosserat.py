@@ -43,7 +43,7 @@ from ..jit import njit
 from ..robot import RobotModel
 from ..soft.integrators import divergence_message, implicit_once, jacobian_state, stable_dt, symplectic_once
 from ..soft.loads import coulomb_friction, friction_slope, rest_free_length
-from ..soft.params import O_DIV, O_F, O_FL, O_FX, O_FZ, O_M, O_N, O_T, OUT, leg_params
+from ..soft.params import O_DIV, O_F, O_FL, O_FX, O_FZ, O_M, O_N, O_T, OUT, P_MUS, P_VS, leg_params
 from ..soft.rod import LegModel, build_leg, lateral_stiffness
 from ..soft.servo import RPM_TO_RAD_S, servo_step
 from . import PLANTS, TendonCommand
@@ -261,9 +261,9 @@ def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly):
     if nrm <= 0.0:
         return
     mu, v_eps = par[2], par[3]
-    fx, fy = coulomb_friction(vx, vy, nrm, mu, v_eps)
+    fx, fy = coulomb_friction(vx, vy, nrm, mu, v_eps, mu, 1.0)  # plain Coulomb: the torso is not the feet's TPU
     # the friction's slope in the floor's plane: its secant, alike in every direction, as the legs' (friction_slope)
-    c = friction_slope(vx, vy, nrm, mu, v_eps)
+    c = friction_slope(vx, vy, nrm, mu, v_eps, mu, 1.0)
     # the point's horizontal velocity is J (v, w): rows jx = (1, 0, 0, 0, r2, -r1), jy = (0, 1, 0, -r2, 0, r0)
     gx = fx + c * vx  # F0 + C v, so that load - C xi_new is the friction at the new velocity
     gy = fy + c * vy
@@ -536,9 +536,9 @@ def coupled_steps(
                 if nrm <= 0.0:
                     continue
                 vs = vel[i, k, 0]
-                _, f0 = coulomb_friction(vs, vlat[k], nrm, mu, v_eps)
+                _, f0 = coulomb_friction(vs, vlat[k], nrm, mu, v_eps, par[i, P_MUS], par[i, P_VS])
                 f0s[k] = f0
-                slopes[i, k] = friction_slope(vlat[k], vs, nrm, mu, v_eps)
+                slopes[i, k] = friction_slope(vlat[k], vs, nrm, mu, v_eps, par[i, P_MUS], par[i, P_VS])
                 csum += slopes[i, k]
                 gsum += f0s[k] + slopes[i, k] * vlat[k]
             pulls[i] = gsum

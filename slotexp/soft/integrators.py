@@ -155,7 +155,7 @@ def symplectic_once(
     """
     n = pos.shape[0]
     n_el = theta.shape[0]
-    c, k_c, d_c, mu, v_eps, ground = dissipative_params(par)
+    c, k_c, d_c, mu, v_eps, ground, _, _ = dissipative_params(par)  # plain Coulomb here (config.validate)
     _set_root(pos, vel, root)
     tension, m_root = conservative_forces(
         pos,
@@ -341,7 +341,8 @@ def implicit_once(
     n = pos.shape[0]
     n_el = theta.shape[0]
     nd = 3 * n - 1
-    c, k_c, d_c, mu, v_eps, ground = dissipative_params(par)
+    c, k_c, d_c, mu, v_eps, ground, mu_s, v_s = dissipative_params(par)
+    mu_top = max(mu, mu_s)
     h2 = h * h
     _set_root(pos, vel, root)
     tension, m_root = conservative_forces(
@@ -385,7 +386,9 @@ def implicit_once(
     for i in range(1, n):
         nrm, fx, regime = 0.0, 0.0, 0
         if ground and pos[i, 1] < 0.0:
-            nrm, fx, _, regime = contact_force(-pos[i, 1], vel[i, 0], vel[i, 1], vlat[i], k_c, d_c, mu, v_eps)
+            nrm, fx, _, regime = contact_force(
+                -pos[i, 1], vel[i, 0], vel[i, 1], vlat[i], k_c, d_c, mu, v_eps, mu_s, v_s
+            )
             rhs[3 * i] += h * fx
             rhs[3 * i + 1] += h * nrm
         normal[i] = nrm
@@ -406,8 +409,10 @@ def implicit_once(
         for i in range(1, n):
             regime = 0
             if ground and pos[i, 1] < 0.0:
-                nrm, _, g_x, regime = contact_force(-pos[i, 1], vel[i, 0], vel[i, 1], vlat[i], k_c, d_c, mu, v_eps)
-                contact_jacobian(i, nrm, g_x, regime, h, k_c, d_c, mu, v_eps, kband, lu)
+                nrm, _, g_x, regime = contact_force(
+                    -pos[i, 1], vel[i, 0], vel[i, 1], vlat[i], k_c, d_c, mu, v_eps, mu_s, v_s
+                )
+                contact_jacobian(i, nrm, g_x, regime, h, k_c, d_c, mu_top, v_eps, kband, lu)
             jmeta[i] = regime
         lu += kband
         for i in range(n):

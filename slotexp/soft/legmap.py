@@ -35,7 +35,7 @@ import numpy as np
 
 from ..config import SlotConfig
 from .integrators import LegSim
-from .params import O_N, P_MU, P_TFX
+from .params import O_N, P_MU, P_MUS, P_TFX
 from .statics import clamped_leg, set_tendon
 
 
@@ -119,7 +119,7 @@ def free_foot(cfg: SlotConfig, angles: np.ndarray, heights: np.ndarray, settle_s
     rows = []
     for h in heights:
         sim = clamped_leg(cfg, root_height=float(h))
-        sim.par[P_MU] = 0.0
+        sim.par[P_MU] = sim.par[P_MUS] = 0.0
         _settle(sim, cfg, settle_s)  # under its own weight first
         for theta in angles:  # continuation in the angle: each point starts from the last
             set_tendon(sim, float(theta), cfg.robot.leg.pulley_radius)
@@ -151,7 +151,7 @@ def stuck_foot(
     rows = []
     for theta in angles:
         free = clamped_leg(cfg, root_height=root_height)
-        free.par[P_MU] = 0.0
+        free.par[P_MU] = free.par[P_MUS] = 0.0
         set_tendon(free, float(theta), cfg.robot.leg.pulley_radius)
         _settle(free, cfg, 2.0 * settle_s)
         r_free = float(free.pos[-1, 0] - free.pos[0, 0])

@@ -9,7 +9,8 @@
 - penalty ground contact at every node below z = 0, N = max(0, -k z - d dz/dt),
   with the damping term implicit so it stays stable at any step;
 - regularised isotropic Coulomb friction, F = -mu N v / max(|v|, v_eps), on the
-  actual normal force N and the node's whole slip velocity v: along the leg's plane
+  actual normal force N and the node's whole slip velocity v (optionally with a static
+  coefficient above the sliding one, :func:`friction_coefficient`): along the leg's plane
   (the node's own velocity, solved implicitly) and across it (the torso's rigid
   motion at the node: the leg is rigid out of its plane); the coupled plant applies
   the part across the plane to the torso;
@@ -42,6 +43,7 @@ from .params import (
     P_K,
     P_KR,
     P_MU,
+    P_MUS,
     P_NA,
     P_PAPER,
     P_TFX,
@@ -51,6 +53,7 @@ from .params import (
     P_TMAX,
     P_TOFF,
     P_VEPS,
+    P_VS,
 )
 from .rod import LegModel, directors, elastic_forces_cs, element_kinematics, paper_elastic_forces
 
@@ -227,9 +230,9 @@ def root_reaction(force, m_root, mass, par, out):
 def dissipative_params(par):
     """Settings of the loads both integrators treat implicitly (damping, contact, friction).
 
-    Returns (damping rate c, contact stiffness, contact damping, mu, v_eps, ground on).
+    Returns (damping rate c, contact stiffness, contact damping, mu, v_eps, ground on, mu_static, v_stribeck).
     """
-    return par[P_C], par[P_K], par[P_D], par[P_MU], par[P_VEPS], par[P_GROUND] > 0.5
+    return par[P_C], par[P_K], par[P_D], par[P_MU], par[P_VEPS], par[P_GROUND] > 0.5, par[P_MUS], par[P_VS]
 
 
 # The implicit step's friction Jacobian is kept in levels a factor of 4 apart (a level is the largest slope it
@@ -241,20 +244,36 @@ FRICTION_LEVELS = 8
 
 
 @njit(cache=True)
-def coulomb_friction(vs, vlat, nrm, mu, v_eps):
+def friction_coefficient(speed, mu, mu_s, v_s):
+    """The friction coefficient at a slip ``speed``: ``mu`` while sliding, rising to ``mu_s`` at rest.
+
+    mu(s) = mu + (mu_s - mu) exp(-(s / v_s)^2), the Gaussian Stribeck curve (Olsson et al.,
+    "Friction models and friction compensation", Eur. J. Control 4, 1998): a rubber-like pad
+    holds more before it slips than it drags once sliding. With ``mu_s`` <= ``mu`` it is
+    plain Coulomb friction, ``mu`` itself (the same arithmetic as without the option).
+    """
+    if mu_s <= mu:
+        return mu
+    x = speed / v_s
+    return mu + (mu_s - mu) * np.exp(-x * x)
+
+
+@njit(cache=True)
+def coulomb_friction(vs, vlat, nrm, mu, v_eps, mu_s, v_s):
     """Isotropic regularised Coulomb friction on a node pressed with ``nrm`` and slipping at (``vs``, ``vlat``).
 
-    F = -mu N v / max(|v|, v_eps): it opposes the slip, its magnitude is mu N while the node
-    slides (|v| >= v_eps) and falls linearly to zero below the slip velocity, in every
-    direction alike. ``vs`` is the velocity along the leg's plane, ``vlat`` across it.
-    Returns (F_s, F_lat).
+    F = -mu(|v|) N v / max(|v|, v_eps): it opposes the slip, its magnitude is mu(|v|) N while
+    the node slides (|v| >= v_eps) and falls linearly to zero below the slip velocity, in every
+    direction alike; mu(|v|) is :func:`friction_coefficient` (``mu`` unless ``mu_s`` > ``mu``).
+    ``vs`` is the velocity along the leg's plane, ``vlat`` across it. Returns (F_s, F_lat).
     """
-    scale = mu * nrm / max(np.sqrt(vs * vs + vlat * vlat), v_eps)
+    speed = np.sqrt(vs * vs + vlat * vlat)
+    scale = friction_coefficient(speed, mu, mu_s, v_s) * nrm / max(speed, v_eps)
     return -scale * vs, -scale * vlat
 
 
 @njit(cache=True)
-def friction_slope(v, v_other, nrm, mu, v_eps):
+def friction_slope(v, v_other, nrm, mu, v_eps, mu_s, v_s):
     """The slope the linearly implicit steps give :func:`coulomb_friction` along ``v`` (``v_other`` the
     slip's other component): its secant mu N / max(|v|, v_eps), alike in every direction.
 
@@ -263,14 +282,18 @@ def friction_slope(v, v_other, nrm, mu, v_eps):
     slip holds, and a friction that can stop a slip within a step but never reverse it. The
     tangent (zero along a straight slip) would leave the friction explicit along the slip,
     and a light node sliding at less than h mu N / m would be thrown back and forth each step.
+    With a static coefficient (``mu_s`` > ``mu``) it is the secant of mu(|v|) N, as large as
+    mu_s N / v_eps at rest.
     """
-    return mu * nrm / max(np.sqrt(v * v + v_other * v_other), v_eps)
+    speed = np.sqrt(v * v + v_other * v_other)
+    return friction_coefficient(speed, mu, mu_s, v_s) * nrm / max(speed, v_eps)
 
 
 @njit(cache=True)
 def friction_level(slope, nrm, mu, v_eps):
     """The Jacobian level of a sliding node's friction slope: 0 for the sticking slope mu N / v_eps, k for
-    slopes in (4^-(k+1), 4^-k] of it, -1 below the last level (the slope is left out)."""
+    slopes in (4^-(k+1), 4^-k] of it, -1 below the last level (the slope is left out). ``mu`` is the
+    largest coefficient (the static one where it is larger)."""
     top = mu * nrm / v_eps
     level = 0
     bound = top
@@ -305,32 +328,33 @@ def contact_proximal(vx, vz, vel_z, force_z, depth, hm, hc, damp, vrig_z, vlat, 
             vx = vx / (1.0 + beta / v_eps)
         else:
             vx = vx * (1.0 - beta / free)
-        fric, _ = coulomb_friction(vx, vlat, nrm, mu, v_eps)
+        fric, _ = coulomb_friction(vx, vlat, nrm, mu, v_eps, mu, 1.0)  # plain Coulomb (config.validate)
         return vx, vz_c, nrm, fric
     return vx, vz, 0.0, 0.0
 
 
 @njit(cache=True)
-def contact_force(depth, vx, vz, vlat, k_c, d_c, mu, v_eps):
+def contact_force(depth, vx, vz, vlat, k_c, d_c, mu, v_eps, mu_s, v_s):
     """Contact and friction of a node ``depth`` below the ground, for the implicit step.
 
     N = k depth - d vz and (F_x, F_lat) = :func:`coulomb_friction` at the slip (vx, ``vlat``).
-    Returns (N, F_x, g, regime) with g = F_x / (-mu N) (how much of the friction acts along
-    the plane) and the regime that fixes the Jacobian's structure: 0 not pressed (N, F_x = 0),
-    1 sticking (|v| < v_eps: a stiff viscous law), 4 + 2 k (+ 1 backwards) sliding with its
-    secant slope (:func:`friction_slope`) at level k (:func:`friction_level`), 2 or 3 sliding
-    forwards or backwards so fast that the slope is left out. The implicit step refactors its
-    Jacobian when a node's regime changes.
+    Returns (N, F_x, g, regime) with g = F_x / (-mu_top N), mu_top the largest coefficient
+    (``max(mu, mu_s)``; how much of the friction acts along the plane) and the regime that fixes
+    the Jacobian's structure: 0 not pressed (N, F_x = 0), 1 sticking (|v| < v_eps: a stiff
+    viscous law), 4 + 2 k (+ 1 backwards) sliding with its secant slope (:func:`friction_slope`)
+    at level k (:func:`friction_level`), 2 or 3 sliding forwards or backwards so fast that the
+    slope is left out. The implicit step refactors its Jacobian when a node's regime changes.
     """
     nrm = k_c * depth - d_c * vz
     if nrm <= 0.0:
         return 0.0, 0.0, 0.0, 0
-    fx, _ = coulomb_friction(vx, vlat, nrm, mu, v_eps)
-    g = -fx / (mu * nrm) if mu > 0.0 else 0.0
+    fx, _ = coulomb_friction(vx, vlat, nrm, mu, v_eps, mu_s, v_s)
+    top = max(mu, mu_s)
+    g = -fx / (top * nrm) if top > 0.0 else 0.0
     if vx * vx + vlat * vlat < v_eps * v_eps:
         return nrm, fx, g, 1
     back = 1 if vx < 0.0 else 0
-    level = friction_level(friction_slope(vx, vlat, nrm, mu, v_eps), nrm, mu, v_eps) if mu > 0.0 else -1
+    level = friction_level(friction_slope(vx, vlat, nrm, mu, v_eps, mu_s, v_s), nrm, top, v_eps) if top > 0.0 else -1
     if level < 0:
         return nrm, fx, g, 2 + back
     return nrm, fx, g, 4 + 2 * level + back
@@ -339,7 +363,8 @@ def contact_force(depth, vx, vz, vlat, k_c, d_c, mu, v_eps):
 @njit(cache=True)
 def contact_jacobian(i, nrm, g, regime, h, k_c, d_c, mu, v_eps, kband, band):
     """Node ``i``'s contact and friction Jacobians for the implicit step (:func:`contact_force`'s law):
-    h^2 (-dF/dx) into ``kband`` and h (-dF/dv) into ``band``, in the step's banded layout.
+    h^2 (-dF/dx) into ``kband`` and h (-dF/dv) into ``band``, in the step's banded layout. ``mu`` is
+    the largest coefficient, the one ``g`` is a share of (:func:`contact_force`).
 
     The friction's slope along the plane is the largest its regime stands for (mu N / v_eps
     sticking, the level's bound sliding), so the factored matrix damps at least as much as

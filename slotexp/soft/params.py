@@ -42,8 +42,11 @@ PAR = (
     "n_anchor",
     "paper_model",
     "k_restore",
+    "mu_static",
+    "v_stribeck",
 )
 (P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFX, P_TFZ, P_TM, P_NA, P_PAPER, P_KR) = range(16)
+P_MUS, P_VS = 16, 17  # the feet's friction at rest and the speed over which it falls to mu (robot.contact)
 # friction: along the leg's plane (the leg's own step); friction_lateral: across it (the coupled plant's torso step)
 OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged", "friction_lateral")
 O_FX, O_FZ, O_M, O_T, O_N, O_F, O_DIV, O_FL = range(8)
@@ -55,6 +58,7 @@ def make_par(**kw: float) -> np.ndarray:
     par[P_VEPS] = 1e-3
     par[P_TMAX] = np.inf
     par[P_NA] = 1
+    par[P_VS] = 1.0  # mu_static 0 (not above mu): plain Coulomb friction
     for key, value in kw.items():
         par[PAR.index(key)] = value
     return par
@@ -89,4 +93,6 @@ def leg_params(
         n_anchor=max(1, int(round(tendon.routed_fraction * (n - 1)))),
         paper_model=1.0 if leg.model == "paper" else 0.0,
         k_restore=leg.restoring_stiffness,
+        mu_static=0.0 if contact.static_friction is None else contact.static_friction,  # 0: plain Coulomb
+        v_stribeck=contact.stribeck_velocity,
     )
