@@ -244,7 +244,22 @@ RUNS = {
             "torso1.5kg": "robot.torso.mass=1.5",
             "com_back15mm": "robot.torso.com_offset=[-0.015,0]",
             "straight_leg": "robot.leg.rest_shape=straight",
+            "static_friction0.15": "robot.contact.static_friction=0.15",
         }.items()
+    },
+    # ... and on the fit held to the paper's walking height (identify_robot_height40), off and on
+    **{
+        f"replay_height40_fit{tag}": [
+            "experiment=replay",
+            "plant=cosserat",
+            "robot.contact.friction=0.207",
+            "robot.servo.horn_zero_deg=[61.8,61.8,61.8,61.8]",
+            "robot.leg.youngs_modulus=7.07e6",
+            "robot.leg.damping_per_s=12.9",
+            *extra,
+            "experiment.gif=false",
+        ]
+        for tag, extra in {"": [], "_static0.31": ["robot.contact.static_friction=0.31"]}.items()
     },
     # The fit of the uncertain settings to the robot's visible gaits (shared/data), and the check that the same
     # fit recovers known values from the model's own noisy observations (tables and tracks of every gait).
