@@ -396,7 +396,7 @@ def _hydra_task(cfg) -> None:
         signum, word = _stopped_by(exc)
         typer.echo(f"{word}: the logs written so far are valid and readable in {out_dir}", err=True)
         typer.echo(str(out_dir))
-        from .sweepstop import is_sweep_worker
+        from .signals import is_sweep_worker
 
         if is_sweep_worker():  # the log is closed: end the job process, which the sweep's parent waits for
             sys.stdout.flush()
@@ -493,7 +493,7 @@ def run(ctx: typer.Context) -> None:
         _check_hydra_dirs(overrides)
         _claim_run_dir(overrides, multirun)
     if multirun:
-        from .sweepstop import become_sweep_parent
+        from .signals import become_sweep_parent
 
         become_sweep_parent()
         _quiet_joblib_settings()
@@ -729,7 +729,7 @@ _received: list[int] = []  # stop signals this process has taken (a launcher may
 
 def _terminate(signum, frame) -> None:
     """SIGTERM (timeout, SLURM, systemd) as Ctrl-C: unwind, close what is open, exit 143."""
-    from .simulation import Interrupted
+    from .errors import Interrupted
 
     _received.append(signum)
     raise Interrupted(signum)

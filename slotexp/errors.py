@@ -1,4 +1,4 @@
-"""Errors the user can fix: one family, so the CLI catches :class:`UserError` alone.
+"""The project's exceptions, in one place: what a user can fix, a stop signal, and a robot's stop.
 
 Everything a user can cause (a config value, a path, a file's content, a step
 too large for the integrator) derives from :class:`UserError`; its ``str()`` is
@@ -6,11 +6,29 @@ one line that says what to change. The CLI prints it as ``error: ...`` and exits
 with status 2. Anything else is a bug and keeps its traceback. The concrete
 classes also derive from the builtin that describes them, so library callers
 can keep catching ``ValueError``.
+
+Two more families are not the user's mistakes: :class:`Interrupted` (a run stopped by
+a signal between two steps, a ``KeyboardInterrupt``) and :class:`RobotStop` (the
+hardware loop stopping the robot: a bus failure or a safety limit).
 """
 
 from __future__ import annotations
 
-__all__ = ["UserError", "ConfigError", "LogReadError", "TrajectoryError", "DivergenceError", "RunFailedError"]
+import signal
+
+__all__ = [
+    "UserError",
+    "ConfigError",
+    "LogReadError",
+    "TrajectoryError",
+    "DivergenceError",
+    "RunFailedError",
+    "MissingExtraError",
+    "Interrupted",
+    "RobotStop",
+    "BusError",
+    "SafetyStop",
+]
 
 
 class UserError(Exception):
@@ -65,3 +83,30 @@ def missing_extra(exc: ModuleNotFoundError) -> MissingExtraError | None:
         f"this needs {root}, which comes with slotexp's [{extra}] extra: pip install 'slotexp[{extra}]' "
         f"(in a checkout: pip install -e '.[{extra}]'; make installs every extra)"
     )
+
+
+class Interrupted(KeyboardInterrupt):
+    """A run stopped by a signal between two MPC steps; ``signum`` says which (SIGINT or SIGTERM)."""
+
+    def __init__(self, signum: int = signal.SIGINT) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+    def __reduce__(self):  # crosses process boundaries with its signal (a pool worker's run)
+        return (Interrupted, (self.signum,))
+
+
+class RobotStop(RuntimeError):
+    """The hardware loop must stop the robot (torque off follows); ``str()`` is the one-line reason."""
+
+
+class BusError(RobotStop):
+    """The bus failed mid-run (after retries) or a servo reported a hardware error: stop safely."""
+
+
+class SafetyStop(RobotStop):
+    """A safety condition the loop stops on; ``reason`` names it for the log."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason

@@ -7,12 +7,9 @@ handed over everything up to the interruption.
 
 from __future__ import annotations
 
-import signal
-import threading
 import time
 import zlib
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -26,6 +23,7 @@ from .plants import Plant, command_for, make_plant, nominal_state
 from .reference import desired_path, reference
 from .robot import build_robot
 from .scene import SceneFrame, SceneTrack
+from .signals import interrupts_between_steps
 
 
 class Sink(Protocol):
@@ -74,53 +72,6 @@ class RunSummary:
     infeasible_steps: int
     sim_time_s: float
     wall_time_s: float
-
-
-class Interrupted(KeyboardInterrupt):
-    """A run stopped by a signal between two MPC steps; ``signum`` says which (SIGINT or SIGTERM)."""
-
-    def __init__(self, signum: int = signal.SIGINT) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-    def __reduce__(self):  # crosses process boundaries with its signal (a pool worker's run)
-        return (Interrupted, (self.signum,))
-
-
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # Ctrl-C; timeout, SLURM, systemd
-
-
-@contextmanager
-def interrupts_between_steps() -> Iterator[Callable[[], None]]:
-    """Take Ctrl-C (SIGINT) and SIGTERM between MPC steps, never inside a compiled kernel.
-
-    Python raises KeyboardInterrupt wherever the interpreter happens to be; inside a
-    numba kernel's call back into Python it surfaces as a ``SystemError`` instead,
-    which no handler expects, and SIGTERM's default ends the process with the log
-    unfinished. While this is active, either signal only sets a flag, and the
-    function it yields raises :class:`Interrupted` at the next step boundary (at
-    most one MPC step later), so the caller's ``with`` blocks close their logs.
-    Outside the main thread it does nothing; a signal that is ignored stays ignored.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield lambda: None
-        return
-    pending: list[int] = []
-    previous = {}
-    for signum in STOP_SIGNALS:
-        if signal.getsignal(signum) is not signal.SIG_IGN:
-            previous[signum] = signal.signal(signum, lambda num, frame: pending.append(num))
-
-    def check() -> None:
-        if pending:
-            raise Interrupted(pending[0])
-
-    try:
-        yield check
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-    check()
 
 
 def scenario_seed(base: int, name: str) -> int:

@@ -23,7 +23,7 @@ import yaml
 from mcap.reader import make_reader
 
 from slotexp.record import read_log
-from slotexp.sweepstop import child_processes
+from slotexp.signals import child_processes
 from tests.helpers import CONF, SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot, slot_after
 
 TABLE1_HEADER = ["scenario", "max_cost", "mean_cost", "final_cost", "settle_s", "infeasible_steps"]
@@ -614,7 +614,7 @@ def _cmdline(pid: int) -> str:
 
 def test_a_stop_signal_to_a_sweeps_parent_closes_every_running_jobs_log_and_starts_no_other(tmp_path: Path) -> None:
     # slot run -m: the joblib launcher ends its workers with SIGKILL when the parent stops; the parent first
-    # passes the signal on and waits for each job to close its log (slotexp/sweepstop.py)
+    # passes the signal on and waits for each job to close its log (slotexp/signals.py)
     sweep = tmp_path / "sweep"
     proc = _spawn(
         [

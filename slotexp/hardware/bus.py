@@ -24,14 +24,10 @@ from typing import Protocol
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import BusError, UserError
 from . import xl430 as X
 from .config import HardwareConfig
 from .mapping import ServoMap
-
-
-class BusError(RuntimeError):
-    """The bus failed mid-run (after retries) or a servo reported a hardware error: stop safely."""
 
 
 @dataclass

@@ -25,24 +25,17 @@ import numpy as np
 from ..body import quat_to_rot
 from ..config import SlotConfig
 from ..controllers import Controller
+from ..errors import SafetyStop
 from ..reference import reference
 from ..robot import RobotModel
 from ..scene import straight_legs
+from ..signals import StopFlag
 from ..simulation import Sink, log_step, scene_track
 from . import xl430 as X
-from .bus import BusError, ServoBus
+from .bus import ServoBus
 from .mapping import ServoMap
 from .odometry import OdometrySource
-from .safety import StopFlag
 from .timing import Deadlines, LoopStats
-
-
-class SafetyStop(RuntimeError):
-    """A condition the loop must stop on (torque off follows); ``str()`` is the one-line reason."""
-
-    def __init__(self, reason: str, message: str) -> None:
-        super().__init__(message)
-        self.reason = reason
 
 
 @dataclass
@@ -223,4 +216,4 @@ def run_loop(
     return outcome
 
 
-__all__ = ["run_loop", "LoopOutcome", "SafetyStop", "BusError", "nominal_feet"]
+__all__ = ["run_loop", "LoopOutcome", "nominal_feet"]

@@ -20,16 +20,17 @@ from pathlib import Path
 
 from .. import __version__
 from ..controllers import Controller, make_controller
+from ..errors import BusError, SafetyStop
 from ..live import open_view
 from ..record import Recorder
 from ..robot import RobotModel, build_robot
+from ..signals import StopFlag
 from ..simulation import Tee
-from .bus import BusError, DynamixelBus, ServoBus
+from .bus import DynamixelBus, ServoBus
 from .config import HardwareSlotConfig
-from .loop import LoopOutcome, SafetyStop, nominal_feet, run_loop
+from .loop import LoopOutcome, nominal_feet, run_loop
 from .mapping import ServoMap
 from .odometry import OdometrySample, OdometrySource, ReplayOdometry, SimOdometry, ZmqOdometry, wait_first
-from .safety import StopFlag
 from .simbus import SimulatedBus, SimWorld
 from .xl430 import DEG_PER_TICK
 

@@ -20,9 +20,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from .. import __version__
 from ..config import ScenarioConfig, SlotConfig
+from ..errors import Interrupted
 from ..parallel import n_workers
 from ..record import Recorder
-from ..simulation import STOP_SIGNALS, Interrupted, RunSummary, Tee, run_closed_loop
+from ..signals import STOP_SIGNALS
+from ..simulation import RunSummary, Tee, run_closed_loop
 
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies
 
@@ -152,7 +154,7 @@ def _between_runs(signum, frame) -> None:
 
 def _worker_init(progress) -> None:
     """Each pool worker: stop signals are taken between MPC steps while a run is on
-    (:func:`slotexp.simulation.interrupts_between_steps`) and dropped between runs; and on Linux the
+    (:func:`slotexp.signals.interrupts_between_steps`) and dropped between runs; and on Linux the
     worker gets SIGTERM when its parent dies, so a killed ``slot run`` leaves no worker computing."""
     global _parent_pid, _progress
     _parent_pid, _progress = os.getppid(), progress
