@@ -40,6 +40,7 @@ from mcap.writer import CompressionType, Writer
 
 from .errors import LogReadError
 from .foxglove_scene import TRANSFORMS_TOPIC, SceneEncoder, TransformEncoder, schemas
+from .telemetry import POSE
 
 __all__ = [
     "LogReadError",
@@ -50,7 +51,7 @@ __all__ = [
     "POSE_TOPIC",
 ]
 
-POSE_TOPIC = "/torso/pose"
+POSE_TOPIC = POSE  # the torso pose, written as foxglove.PoseInFrame
 
 _MAGIC = b"\x89MCAP0\r\n"
 _NS_PER_S = 1_000_000_000

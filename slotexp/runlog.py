@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from . import telemetry as T
 from .errors import UserError
 from .mpc import CONSTRAINT_GROUPS
 from .record import Log, read_log
@@ -48,15 +49,15 @@ def _states(df: pd.DataFrame, n: int) -> np.ndarray:
 
 # the topics a RunData is built from; read_log decodes only these
 RUN_TOPICS = (
-    "/state",
-    "/state_measured",
-    "/reference",
-    "/cost",
-    "/mpc/stats",
-    "/constraints",
-    "/contact",
-    "/forces",
-    "/markers",
+    T.STATE,
+    T.STATE_MEASURED,
+    T.REFERENCE,
+    T.COST,
+    T.MPC_STATS,
+    T.CONSTRAINTS,
+    T.CONTACT,
+    T.FORCES,
+    T.MARKERS,
 )
 
 
@@ -67,24 +68,24 @@ def load_run(path: str | Path) -> RunData:
     if n == 0:
         what = "was cut off before its first whole chunk" if log.truncated else "holds no MPC step"
         raise UserError(f"{path}: the log {what}: there is nothing to rebuild tables and figures from")
-    stats = log["/mpc/stats"].iloc[:n].reset_index(drop=True)
-    cons = log["/constraints"].iloc[:n].reset_index(drop=True)
-    forces = log["/forces"][[f"applied.{i}.{j}" for i in range(4) for j in range(3)]].to_numpy(float)[:n]
+    stats = log[T.MPC_STATS].iloc[:n].reset_index(drop=True)
+    cons = log[T.CONSTRAINTS].iloc[:n].reset_index(drop=True)
+    forces = log[T.FORCES][[f"applied.{i}.{j}" for i in range(4) for j in range(3)]].to_numpy(float)[:n]
     return RunData(
         path=path,
         run=dict(log.metadata.get("run", {})),
         summary=dict(log.metadata.get("summary", {})),
         truncated=log.truncated,
-        t=log["/state"]["t"].to_numpy(float)[:n],
-        x=_states(log["/state"], n),
-        x_meas=_states(log["/state_measured"], n),
-        x_ref=_states(log["/reference"], n),
-        cost=log["/cost"]["stage"].to_numpy(float)[:n],
+        t=log[T.STATE]["t"].to_numpy(float)[:n],
+        x=_states(log[T.STATE], n),
+        x_meas=_states(log[T.STATE_MEASURED], n),
+        x_ref=_states(log[T.REFERENCE], n),
+        cost=log[T.COST]["stage"].to_numpy(float)[:n],
         stats=stats,
         violations=cons[[g for g in CONSTRAINT_GROUPS]],
-        stance=log["/contact"][[f"stance.{i}" for i in range(4)]].to_numpy(float)[:n] > 0.5,
+        stance=log[T.CONTACT][[f"stance.{i}" for i in range(4)]].to_numpy(float)[:n] > 0.5,
         forces=forces.reshape(-1, 4, 3),
-        markers=log["/markers"].iloc[:n].reset_index(drop=True),
+        markers=log[T.MARKERS].iloc[:n].reset_index(drop=True),
     )
 
 

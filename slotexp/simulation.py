@@ -9,60 +9,19 @@ from __future__ import annotations
 
 import time
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
 
 import numpy as np
 
 from .config import ScenarioConfig, SlotConfig
 from .controllers import ControlStep, make_controller
 from .errors import RunFailedError
-from .metrics import stage_cost
 from .plants import Plant, command_for, make_plant, nominal_state
 from .reference import desired_path, reference
 from .robot import build_robot
-from .scene import SceneFrame, SceneTrack
 from .signals import interrupts_between_steps
-
-
-class Sink(Protocol):
-    def write(self, topic: str, t: float, message: Mapping[str, Any]) -> None: ...
-
-    def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None: ...
-
-
-class SceneSink(Sink, Protocol):
-    """A sink that also takes the 3D scene (the MCAP recorder, the live view)."""
-
-    def write_scene(self, frame: SceneFrame) -> None: ...
-
-
-class Tee:
-    """One sink that hands every message to several (the MCAP log and the live view)."""
-
-    def __init__(self, *sinks: SceneSink) -> None:
-        self.sinks = sinks
-
-    def write(self, topic: str, t: float, message: Mapping[str, Any]) -> None:
-        for s in self.sinks:
-            s.write(topic, t, message)
-
-    def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None:
-        for s in self.sinks:
-            s.write_pose(t, position, quaternion_wxyz)
-
-    def write_scene(self, frame: SceneFrame) -> None:
-        for s in self.sinks:
-            s.write_scene(frame)
-
-
-def scene_track(sink: Sink | None, legs: list[str], torso: Any) -> SceneTrack | None:
-    """A scene builder when ``sink`` draws scenes (has ``write_scene``); None for numbers-only sinks. ``torso``:
-    ``robot.torso`` (its box's size, and its mass centre's offset in the box)."""
-    if sink is None or not callable(getattr(sink, "write_scene", None)):
-        return None
-    return SceneTrack(legs, torso.size, com_offset=torso.com_offset)
+from .telemetry import Sink, StepRecord, log_step, scene_track
 
 
 @dataclass
@@ -77,10 +36,6 @@ class RunSummary:
 def scenario_seed(base: int, name: str) -> int:
     """A per-scenario seed that does not depend on which other scenarios run."""
     return (int(base) * 1_000_003 + zlib.crc32(name.encode())) % (2**32)
-
-
-def _state_msg(x: np.ndarray) -> dict[str, Any]:
-    return {"rpy": x[0:3], "p": x[3:6], "omega": x[6:9], "v": x[9:12]}
 
 
 def run_closed_loop(
@@ -125,8 +80,7 @@ def run_closed_loop(
             x_ref_now[3:5] = desired_path(origin, cfg.gait, np.array([t]))[0]
             if sink is not None:
                 position, quaternion = plant.pose()
-                log_step(
-                    sink,
+                record = StepRecord(
                     t,
                     x_true,
                     x_meas,
@@ -138,9 +92,9 @@ def run_closed_loop(
                     quaternion,
                     names,
                     q_diag,
-                    scene,
                     plant.legs,
                 )
+                log_step(sink, record, scene)
                 for topic, message in plant.telemetry().items():
                     sink.write(topic, t, message)
             _advance(plant, step, t, period, impulses, scenario, rng)
@@ -159,68 +113,6 @@ def run_closed_loop(
         sim_time_s=done * period,
         wall_time_s=time.perf_counter() - started,
     )
-
-
-def log_step(
-    sink: Sink,
-    t: float,
-    x_true: np.ndarray,
-    x_meas: np.ndarray,
-    x_ref_now: np.ndarray,
-    step: ControlStep,
-    infeasible_total: int,
-    markers: Mapping[str, np.ndarray],
-    position: np.ndarray,
-    quaternion_wxyz: np.ndarray,
-    legs: list[str],
-    q_diag: np.ndarray,
-    scene: SceneTrack | None = None,
-    leg_nodes: Callable[[], np.ndarray] | None = None,
-) -> None:
-    """One MPC step's messages: the log schema shared by simulation and hardware runs.
-
-    ``x_true`` is the best available state (the plant's in simulation, the state
-    estimate on hardware); the cost is evaluated on it. With a ``scene`` builder the
-    step's 3D scene goes to ``sink.write_scene`` too: ``leg_nodes()`` gives the legs
-    (4, N, 3), root to foot, and the applied forces (``/forces``) are drawn at each
-    leg's last node, the foot.
-    """
-    sol = step.solution
-    sink.write_pose(t, position, quaternion_wxyz)
-    sink.write("/state", t, _state_msg(x_true))
-    sink.write("/state_measured", t, _state_msg(x_meas))
-    sink.write("/reference", t, _state_msg(x_ref_now))
-    sink.write("/cost", t, {"stage": float(stage_cost(x_true, x_ref_now, q_diag))})
-    sink.write("/forces", t, {"applied": step.forces, "planned": sol.forces, "legs": legs})
-    sink.write(
-        "/contact",
-        t,
-        {"stance": step.plan.stance[0].astype(float), "mu": step.plan.mu[0], "fz_max": step.plan.fz_max[0]},
-    )
-    sink.write("/tendon", t, {"command_deg": step.tendon_deg})
-    sink.write(
-        "/mpc/stats",
-        t,
-        {
-            "status": sol.status,
-            "success": sol.success,
-            "fallback": step.fallback,
-            "iterations": sol.iterations,
-            "solve_time_s": sol.solve_time_s,
-            "wall_time_s": sol.wall_time_s,
-            "objective": sol.objective,
-            "infeasible_total": infeasible_total,
-        },
-    )
-    sink.write("/mpc/plan", t, {"fz": sol.plan_fz, "predicted_p": sol.predicted[:, 3:6]})
-    sink.write("/constraints", t, step.violations)
-    sink.write("/markers", t, dict(markers))
-    if step.telemetry:
-        sink.write("/controller", t, step.telemetry)
-    if scene is not None and leg_nodes is not None:
-        nodes = leg_nodes()
-        footholds = (step.telemetry or {}).get("foothold")  # a controller that plans footholds reports them
-        sink.write_scene(scene.frame(t, position, quaternion_wxyz, x_ref_now[3:6], nodes, step.forces, footholds))
 
 
 def _advance(

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from . import telemetry as T
 from .atomic import write_csv, write_text
 from .errors import UserError
 from .figures.style import new_figure, save
@@ -114,14 +115,14 @@ def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
     paths = sorted((job / "logs").glob("*.mcap"))
     for path in paths:
         try:
-            log = read_log(path, topics=("/mpc/stats",))
+            log = read_log(path, topics=(T.MPC_STATS,))
         except LogReadError as exc:
             raise UserError(f"{path}: {str(exc).splitlines()[0]}") from exc
         if log.truncated or "summary" not in log.metadata:  # killed, or stopped before its end
             incomplete.append(path.name)
-        if "/mpc/stats" not in log:
+        if T.MPC_STATS not in log:
             continue
-        stats = log["/mpc/stats"]
+        stats = log[T.MPC_STATS]
         walls.append(stats["wall_time_s"].to_numpy(float)[1:])  # the first step also pays one-off setup
         fallback = int(stats["fallback"].astype(bool).sum())
         infeasible += fallback

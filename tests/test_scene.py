@@ -33,7 +33,8 @@ from slotexp.foxglove_scene import (
 from slotexp.live import LiveView
 from slotexp.record import Recorder, read_log
 from slotexp.scene import FORCE_SCALE_M_PER_N, SceneTrack, rotation_from_x, straight_legs
-from slotexp.simulation import Tee, run_closed_loop
+from slotexp.simulation import run_closed_loop
+from slotexp.telemetry import Tee
 from tests import sdk_scene
 from tests.helpers import load
 

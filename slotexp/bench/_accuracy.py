@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import telemetry as T
 from ..config import SlotConfig
 from ..simulation import run_closed_loop
 
@@ -89,10 +90,10 @@ class _TraceSink:
         self.normal: list[np.ndarray] = []
 
     def write(self, topic: str, t: float, message) -> None:
-        if topic == "/state":
+        if topic == T.STATE:
             self.t.append(t)
             self.x.append(np.concatenate([message[k] for k in ("rpy", "p", "omega", "v")]))
-        elif topic == "/legs/contact":
+        elif topic == T.LEGS_CONTACT:
             self.normal.append(np.asarray(message["normal_n"], float).copy())
 
     def write_pose(self, *args) -> None:

@@ -37,6 +37,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from .. import telemetry as T
 from ..config import SlotConfig
 from ..plants import TendonCommand
 from ..soft.integrators import LegSim, stable_dt
@@ -133,7 +134,7 @@ class _StatsSink:
         self.mpc_s: list[float] = []
 
     def write(self, topic, t, message) -> None:
-        if topic == "/mpc/stats":
+        if topic == T.MPC_STATS:
             self.mpc_s.append(float(message["wall_time_s"]))
 
     def write_pose(self, *args) -> None:

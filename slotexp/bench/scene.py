@@ -25,7 +25,8 @@ import numpy as np
 
 from ..config import SlotConfig
 from ..record import Recorder
-from ..simulation import Tee, run_closed_loop
+from ..simulation import run_closed_loop
+from ..telemetry import Tee
 from . import BenchRow, register
 
 PASSES = 12

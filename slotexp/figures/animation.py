@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.animation import FuncAnimation, PillowWriter
 
+from .. import telemetry as T
 from ..atomic import replacing
 from ..body import quat_to_rot
 from .style import LEG_COLOURS, new_figure
@@ -89,10 +90,10 @@ def animate_log(log_path: str | Path, out: str | Path, seconds: float = 8.0, fps
     from ..record import read_log
 
     log = read_log(log_path)
-    if "/legs/shape" not in log:
+    if T.LEGS_SHAPE not in log:
         return None
-    shape = log["/legs/shape"]
-    pose = log["/torso/pose"]
+    shape = log[T.LEGS_SHAPE]
+    pose = log[T.POSE]
     conf = yaml.safe_load(log.metadata["config"]["yaml"])
     names = conf["robot"]["leg"]["names"]
     n_nodes = len([c for c in shape.columns if c.startswith(f"{names[0]}.") and c.endswith(".0")])

@@ -30,7 +30,7 @@ from ..reference import reference
 from ..robot import RobotModel
 from ..scene import straight_legs
 from ..signals import StopFlag
-from ..simulation import Sink, log_step, scene_track
+from ..telemetry import LOOP, SERVOS, Sink, StepRecord, log_step, scene_track
 from . import xl430 as X
 from .bus import ServoBus
 from .mapping import ServoMap
@@ -154,8 +154,7 @@ def run_loop(
         x_ref_now = reference(x, t, cfg.gait, period, 1, start=0)[0]
         x_ref_now[3:5] = p_des
         p_des = p_des + period * x_ref_now[9:11]
-        log_step(
-            sink,
+        record = StepRecord(
             t,
             x,
             x,
@@ -167,11 +166,11 @@ def run_loop(
             sample.quaternion,
             names,
             q_diag,
-            scene,
             functools.partial(nominal_legs, robot, sample.position, sample.quaternion),
         )
+        log_step(sink, record, scene)
         sink.write(
-            "/servos",
+            SERVOS,
             t,
             {
                 "ids": list(bus.ids),
@@ -193,7 +192,7 @@ def run_loop(
         cycle_time = clock() - started
         overrun = clock() > sched.next_due
         sink.write(
-            "/loop",
+            LOOP,
             t,
             {
                 "cycle": sched.k,

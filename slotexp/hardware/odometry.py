@@ -27,6 +27,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from .. import telemetry as T
 from ..body import euler_to_quat, quat_to_euler, quat_to_rot
 from ..errors import UserError
 
@@ -186,9 +187,9 @@ class ReplayOdometry:
             log = read_log(logs[0])
         except LogReadError as exc:
             raise UserError(str(exc)) from None
-        if "/state" not in log or len(log["/state"]) == 0:
+        if T.STATE not in log or len(log[T.STATE]) == 0:
             raise UserError(f"{logs[0]}: the log has no /state messages to replay")
-        df = log["/state"]
+        df = log[T.STATE]
         self._t = df["t"].to_numpy(float)
         self._x = df[[f"{f}.{i}" for f in STATE_FIELDS for i in range(3)]].to_numpy(float)
         self._t0 = self.clock()

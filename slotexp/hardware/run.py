@@ -25,7 +25,7 @@ from ..live import open_view
 from ..record import Recorder
 from ..robot import RobotModel, build_robot
 from ..signals import StopFlag
-from ..simulation import Tee
+from ..telemetry import Tee
 from .bus import DynamixelBus, ServoBus
 from .config import HardwareSlotConfig
 from .loop import LoopOutcome, nominal_feet, run_loop

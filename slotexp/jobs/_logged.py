@@ -24,7 +24,8 @@ from ..errors import Interrupted
 from ..parallel import n_workers
 from ..record import Recorder
 from ..signals import STOP_SIGNALS
-from ..simulation import RunSummary, Tee, run_closed_loop
+from ..simulation import RunSummary, run_closed_loop
+from ..telemetry import Tee
 
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent dies
 

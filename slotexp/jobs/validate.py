@@ -12,6 +12,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import telemetry as T
 from ..atomic import write_csv, write_json, write_text
 from ..compare import Alignment, Trajectory, align, compare, load_marker_csv, trajectory_from_frame
 from ..config import SlotConfig, check_scenario, choice_field, num_field
@@ -58,9 +59,9 @@ def load_trajectory(spec: str) -> Trajectory:
     if path.suffix.lower() == ".csv":
         return load_marker_csv(path)
     log = read_log(path)
-    if "/markers" not in log:
+    if T.MARKERS not in log:
         raise UserError(f"{path}: the log has no /markers topic to compare")
-    return trajectory_from_frame(log["/markers"])
+    return trajectory_from_frame(log[T.MARKERS])
 
 
 def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:

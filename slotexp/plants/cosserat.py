@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
+from .. import telemetry as T
 from ..actuation import tendon_angle_deg
 from ..body import advance_quaternion, euler_to_quat, quat_to_euler, quat_to_rot, solve_spd
 from ..config import SlotConfig, TorsoConfig
@@ -918,20 +919,20 @@ class CosseratPlant:
         legs = self.leg_world()
         names = self.robot.names
         return {
-            "/legs/shape": {name: legs[i] for i, name in enumerate(names)},
-            "/legs/tendon": {
+            T.LEGS_SHAPE: {name: legs[i] for i, name in enumerate(names)},
+            T.LEGS_TENDON: {
                 "tension_n": self.out[:, O_T].copy(),
                 "servo_deg": np.rad2deg(self.servo),
                 "command_deg": np.rad2deg(self.servo_cmd),
             },
             # friction_n: the size of the leg's friction, along its plane and across it
-            "/legs/contact": {
+            T.LEGS_CONTACT: {
                 "normal_n": self.out[:, O_N].copy(),
                 "friction_n": np.hypot(self.out[:, O_F], self.out[:, O_FL]),
                 "lateral_m": self.lateral[:, 0].copy(),  # the patch's deflection across the plane
             },
-            "/legs/root": {"force_n": self.reaction[:, 0:3].copy(), "moment_nm": self.reaction[:, 3:6].copy()},
-            "/torso/contact": {"normal_n": float(self.belly[0]), "friction_n": self.belly[1:3].copy()},
+            T.LEGS_ROOT: {"force_n": self.reaction[:, 0:3].copy(), "moment_nm": self.reaction[:, 3:6].copy()},
+            T.TORSO_CONTACT: {"normal_n": float(self.belly[0]), "friction_n": self.belly[1:3].copy()},
         }
 
     def _settle_legs(self, seconds: float) -> None:

@@ -29,6 +29,7 @@ import time as _time
 import mujoco
 import numpy as np
 
+from .. import telemetry as T
 from ..body import quat_to_euler
 from ..config import SlotConfig
 from ..footstep import swing_point
@@ -100,8 +101,8 @@ class RigidPlant:
         """Joint torques and angles, and each leg's points (:meth:`legs`)."""
         legs = self.legs()
         return {
-            "/rigid": {"joint_torque": self.torque.copy(), "joint_angle": self.data.qpos[self.index.qpos]},
-            "/legs/shape": {name: legs[i] for i, name in enumerate(self.robot.names)},
+            T.RIGID: {"joint_torque": self.torque.copy(), "joint_angle": self.data.qpos[self.index.qpos]},
+            T.LEGS_SHAPE: {name: legs[i] for i, name in enumerate(self.robot.names)},
         }
 
     # ------------------------------------------------------------------ actuation
