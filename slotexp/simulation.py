@@ -17,9 +17,10 @@ import numpy as np
 from .config import ScenarioConfig, SlotConfig
 from .controllers import ControlStep, make_controller
 from .errors import RunFailedError
-from .plants import Plant, command_for, make_plant, nominal_state
+from .plants import Command, Plant, command_for, make_plant, nominal_state
 from .reference import desired_path, reference
 from .robot import build_robot
+from .scenarios import advance, perturbations
 from .signals import interrupts_between_steps
 from .telemetry import Sink, StepRecord, log_step, scene_track
 
@@ -52,7 +53,7 @@ def run_closed_loop(
     period = controller.period
     n_steps = int(round(duration * cfg.mpc.rate_hz))
     rng = np.random.default_rng(scenario_seed(cfg.sim.seed, scenario.name))
-    impulses = sorted(scenario.impulses, key=lambda imp: imp.t)
+    acting = perturbations(scenario)
     q_diag = np.asarray(cfg.mpc.q_diag)
     names = list(robot.names)
     started = time.perf_counter()
@@ -97,7 +98,7 @@ def run_closed_loop(
                 log_step(sink, record, scene)
                 for topic, message in plant.telemetry().items():
                     sink.write(topic, t, message)
-            _advance(plant, step, t, period, impulses, scenario, rng)
+            advance(plant, _plant_command(plant, step), t, period, acting, rng)
             done = k + 1
             if progress is not None:
                 progress(done, n_steps)
@@ -115,29 +116,9 @@ def run_closed_loop(
     )
 
 
-def _advance(
-    plant: Plant,
-    step: ControlStep,
-    t: float,
-    period: float,
-    impulses: list,
-    scenario: ScenarioConfig,
-    rng: np.random.Generator,
-) -> None:
-    """One MPC period, split exactly at any impulse that falls inside it."""
+def _plant_command(plant: Plant, step: ControlStep) -> Command:
+    """The command ``plant`` takes for ``step``: the controller's own when it built one of the plant's kind
+    (the rigid controller's LegCommand), else the plant's kind from the step's forces and tendon angles."""
     if isinstance(step.command, plant.command_type):
-        command = step.command
-    else:
-        command = command_for(plant.command_type, step.forces, step.tendon_deg)
-    sigma = scenario.noise.process_force_sigma
-    f_ext = rng.normal(0.0, sigma, 3) if sigma > 0 else None
-    now = t
-    end = t + period
-    while impulses and impulses[0].t < end - 1e-12:
-        imp = impulses.pop(0)
-        if imp.t > now + 1e-12:
-            plant.step(command, imp.t - now, f_ext)
-            now = imp.t
-        plant.apply_impulse(np.asarray(imp.linear), np.asarray(imp.angular))
-    if end - now > 1e-12:
-        plant.step(command, end - now, f_ext)
+        return step.command
+    return command_for(plant.command_type, step.forces, step.tendon_deg)
