@@ -1,8 +1,10 @@
-"""Shared test configuration: the ``slow`` mark (``pytest -m "not slow"`` runs the quick subset) and the
-``serial`` mark (real-time tests that must not share the machine: ``make test`` runs them alone)."""
+"""Shared test configuration: the ``slow`` mark (``pytest -m "not slow"`` runs the quick subset), the
+``serial`` mark (real-time tests that must not share the machine: ``make test`` runs them alone) and the
+``mujoco`` mark (tests of the rigid plant, skipped where the [rigid] extra is not installed)."""
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -15,6 +17,19 @@ SERIAL_MODULES = ("test_hardware_cli.py", "test_hardware_emulator.py", "test_har
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "slow: takes a second or more (listed in tests/slow_tests.txt)")
     config.addinivalue_line("markers", "serial: runs in real time, alone (tests/conftest.py SERIAL_MODULES)")
+    config.addinivalue_line("markers", "mujoco: needs MuJoCo (pip install 'slotexp[rigid]'); skipped without it")
+
+
+def _have(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ValueError:  # a module set to None in sys.modules (a test's way of hiding it)
+        return False
+
+
+HAVE_MUJOCO = _have("mujoco")
+# modules that import MuJoCo to be collected at all (their tests carry the mujoco mark)
+collect_ignore = [] if HAVE_MUJOCO else ["test_rigid.py"]
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -39,3 +54,5 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.slow)
         if item.path.name in SERIAL_MODULES:
             item.add_marker(pytest.mark.serial)
+        if not HAVE_MUJOCO and item.get_closest_marker("mujoco"):
+            item.add_marker(pytest.mark.skip(reason="needs MuJoCo: pip install 'slotexp[rigid]'"))

@@ -182,7 +182,6 @@ PRECHECKED = [  # (overrides, words the error must name): rejected before Hydra 
     (["mpç.horizon=3"], ["'mpç.horizon' is not a setting's name"]),
     (["experiment=simulate", "experiment.name=perturb"], ["experiment.name = 'perturb'", "experiment=perturb"]),
     (["experiment=legmap", "plant=cosserat", "experiment.angles=3"], ["experiment.angles = 3", "needs 6"]),
-    (["plant=rigid", "robot=mini_cheetah", f"robot.rigid.model={__file__}"], ["is not a model MuJoCo can read"]),
     (["-m", "hydra.launcher.n_jobs=0", "experiment=simulate"], ["hydra.launcher.n_jobs=0", "-1 for every core"]),
     (
         ["-m", "experiment=simulate", "gait.name=" + "a" * 99, "scenarios.baseline.name=" + "b" * 99, "mpc.horizon=10"],
@@ -210,6 +209,15 @@ def test_bad_override_is_one_line_error(tmp_path: Path, overrides: list[str], na
     assert_one_line_error(proc, *names)
     assert not run_dir.exists(), "a run directory was created for a rejected config"
     assert not (tmp_path / "experiments").exists()
+
+
+@pytest.mark.mujoco
+def test_a_rigid_model_mujoco_cannot_read_is_one_line_error(tmp_path: Path) -> None:
+    overrides = ["plant=rigid", "robot=mini_cheetah", f"robot.rigid.model={__file__}"]
+    run_dir = tmp_path / "run"
+    proc = slot("run", *overrides, f"hydra.run.dir={run_dir}", cwd=tmp_path, timeout=60)
+    assert_one_line_error(proc, "is not a model MuJoCo can read")
+    assert not run_dir.exists(), "a run directory was created for a rejected config"
 
 
 @pytest.mark.parametrize("bad", ["experiment.scenario=bäseline", "x=[1,2", "mpç.horizon=3", "gait=wälk"])

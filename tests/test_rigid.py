@@ -27,6 +27,8 @@ from slotexp.robot import build_robot
 from slotexp.simulation import run_closed_loop
 from tests.helpers import load
 
+pytestmark = pytest.mark.mujoco  # tests/conftest.py leaves this module out where MuJoCo is not installed
+
 G = 9.81
 
 

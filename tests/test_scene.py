@@ -125,6 +125,7 @@ def test_every_step_has_a_scene_that_decodes_with_the_sdk_schema(soft_log: Path)
             assert [end.x, end.y, end.z] == pytest.approx(expected, abs=1e-12), (key, k)
 
 
+@pytest.mark.mujoco
 def test_the_rigid_quadrupeds_scene_shows_its_feet_and_the_planned_footholds(tmp_path: Path) -> None:
     cfg = load("experiment=simulate", "plant=rigid")
     path = tmp_path / "trot.mcap"
