@@ -94,9 +94,14 @@ def test_identification_recovers_a_known_horn_zero_from_the_models_own_noisy_obs
     }
     assert fit["cost"] == pytest.approx(float((residuals["residual"] ** 2).sum()), rel=1e-4)  # CSV: 6 digits
     candidates = pd.read_csv(tmp_path / "candidates.csv")
-    assert len(candidates) == 17 and candidates["cost"].min() <= fit["cost"] * (1 + 1e-5)  # the start, then 16
+    # the start, 16 of the search, then 8 across the horn zero's range (100 to 130) with nothing else to hold;
+    # the fit is the lowest cost of all of them
+    assert len(candidates) == 25
+    assert candidates["cost"].min() == pytest.approx(fit["cost"], rel=1e-5)
+    scan = candidates["robot.servo.horn_zero_deg"].iloc[-8:].to_numpy()
+    np.testing.assert_allclose(scan, np.linspace(100.0, 130.0, 8), rtol=1e-5)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    assert metrics["evaluations"] == 17
+    assert metrics["evaluations"] == 25
     assert_png(tmp_path / "fig_identify.png")
     (tmp_path / "spread.csv").unlink()
     assert report(tmp_path, cfg) == metrics  # every output is rebuilt from the log alone (slot figures)
@@ -175,4 +180,4 @@ def test_an_initial_design_is_evaluated_first_and_the_search_starts_from_its_bes
     assert all(100.0 + 6.0 * i <= d <= 100.0 + 6.0 * (i + 1) for i, d in enumerate(design))  # one per fifth
     best = first.loc[first["cost"].idxmin()]
     assert candidates.iloc[6]["robot.servo.horn_zero_deg"] == pytest.approx(best["robot.servo.horn_zero_deg"], rel=1e-5)
-    assert len(candidates) == 6 + 1 + 4  # the design with the start, the search's start, then 4
+    assert len(candidates) == 6 + 1 + 4 + 8  # the design with the start, the search's start, 4, the scan of 8

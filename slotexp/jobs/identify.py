@@ -27,7 +27,11 @@ processes, every core, by default; a Dask cluster as a setting). Writes ``fit.ya
 (the best values, as overrides), ``residuals.csv``, ``candidates.csv``, ``spread.csv``
 (the range of each parameter over the candidates within the 68 % Delta-chi^2 of the best),
 ``metrics.json`` and ``fig_identify.png``, all rebuilt by ``slot figures`` from
-``logs/identify.mcap``.
+``logs/identify.mcap``. After the search, each parameter is scanned over its whole range
+with the others at the best (``experiment.slice_points`` each): a search that converges
+visits little of a weakly constrained parameter's range, so without the scan the region
+would describe where the search went, not where the cost allows. The best is the lowest
+cost of every candidate, the scans' included.
 """
 
 from __future__ import annotations
@@ -111,6 +115,8 @@ class IdentifyExperiment:
     # Latin-hypercube points over the ranges evaluated first; the search starts from the best of them and the
     # config's own values (a fit from the config alone can settle in a local minimum: results/README.md)
     initial_design: int = num_field(16, lo=0, hi=10000, unit="candidates")
+    # after the search: each parameter scanned over its range at this many points, the others at the best
+    slice_points: int = num_field(8, lo=0, hi=1000, unit="candidates per parameter")
     seed: int = num_field(1, lo=0, unit="")
     parallel: ParallelConfig = field(default_factory=ParallelConfig)
     synthetic: SyntheticConfig = field(default_factory=SyntheticConfig)
@@ -448,7 +454,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         # every core: the engine's processes, each batch's robots on the cores left to it
         local = exp.parallel.engine == "processes" or exp.parallel.address is None
         threads = max(1, (os.cpu_count() or 1) // engine.workers) if local else 0
-        task = bar.add_task("identify", total=exp.initial_design + exp.max_evals + 2)
+        task = bar.add_task("identify", total=exp.initial_design + exp.max_evals + k * exp.slice_points + 2)
         written = 0
         generation = 0
 
@@ -482,7 +488,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
             design = qmc.LatinHypercube(d=k, seed=exp.seed).random(exp.initial_design)
             points = [x0] + [np.concatenate([u, x0[k:]]) for u in design]
             x0 = points[int(np.argmin(evaluate_generation(points)))]
-        _, best_u = search(
+        best_cost, best_u = search(
             evaluate_generation,
             x0,
             sigma0=exp.sigma0,
@@ -491,6 +497,12 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
             seed=exp.seed,
             bounds=(np.zeros(len(x0)), np.ones(len(x0))),
         )
+        if exp.slice_points > 0:  # each parameter across its range, the others at the best: one batch
+            grid = np.linspace(0.0, 1.0, exp.slice_points)
+            points = [np.concatenate([best_u[:i], [g], best_u[i + 1 :]]) for i in range(k) for g in grid]
+            for u, c in zip(points, evaluate_generation(points), strict=True):
+                if c < best_cost:
+                    best_cost, best_u = c, u
         ((v, r, c),) = run_candidates([best_u])
         bar.advance(task)
         if "error" in r:
