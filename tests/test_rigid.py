@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from slotexp import footstep
-from slotexp.backends import BACKENDS, make_mpc
+from slotexp.backends import BACKENDS, backend_class, make_mpc
 from slotexp.config import ConfigError
 from slotexp.controllers.rigid import RigidController, stance_durations, swing_steps_left
 from slotexp.mpc import plan_violations
@@ -328,8 +328,15 @@ def test_push_is_recovered_without_a_fall() -> None:
 
 
 # ----------------------------------------------------------------------------- backends on the rigid QP
-REL_TOL = {"daqp": 1e-6, "clarabel": 1e-5, "osqp_direct": 5e-3, "osqp": 5e-3, "scs": 5e-3}
-VIOLATION_TOL = {"daqp": 1e-6, "clarabel": 1e-6, "osqp_direct": 5e-3, "osqp": 5e-3, "scs": 1e-2}
+
+
+def rigid_violation_tol(backend: str) -> float:
+    """The backend's promise on SLOT's QPs, ten times looser for a first-order solver: the Mini Cheetah's
+    forces are about ten times SLOT's, and a solver that stops at its eps misses by a share of them."""
+    cls = backend_class(backend)
+    return cls.violation_tol * (10.0 if cls.first_order else 1.0)
+
+
 REFERENCE = ("solver=clarabel", "solver.eps_abs=1e-9", "solver.eps_rel=1e-9")
 
 
@@ -372,10 +379,12 @@ def test_every_backend_solves_the_rigid_qp_to_the_same_objective(backend: str) -
     solutions = _solve(f"solver={backend}")  # each backend at its own conf/solver tolerances
     for (_x, _, _, plan), ref, sol in zip(_trot_problems(), reference, solutions):
         assert ref.success and sol.success, (backend, sol.status)
-        assert sol.objective == pytest.approx(ref.objective, rel=REL_TOL[backend], abs=1e-9)
+        assert sol.objective == pytest.approx(ref.objective, rel=backend_class(backend).objective_rtol, abs=1e-9)
         worst = plan_violations(sol.inputs, plan, robot.mass * G, cfg.mpc.force_balance_band)
-        assert max(worst.values()) <= VIOLATION_TOL[backend], (backend, worst)
-        assert np.all(sol.inputs.reshape(-1, 4, 3)[~plan.stance] == pytest.approx(0.0, abs=VIOLATION_TOL[backend]))
+        assert max(worst.values()) <= rigid_violation_tol(backend), (backend, worst)
+        assert np.all(
+            sol.inputs.reshape(-1, 4, 3)[~plan.stance] == pytest.approx(0.0, abs=rigid_violation_tol(backend))
+        )
 
 
 def test_perturb_cycle_average_uses_the_gait_matrix_period() -> None:

@@ -11,7 +11,8 @@
 Every backend derives from :class:`._base.MpcBackend`, takes the same
 :class:`~slotexp.config.SolverConfig` settings and returns
 :class:`~slotexp.mpc.MpcSolution`. A new backend is one module here, named after
-it, whose class is decorated with ``@BACKENDS.register()``, plus its
+it, whose class is decorated with ``@BACKENDS.register()`` and declares how exact it is
+(``objective_rtol``, ``violation_tol``, ``first_order``: what the tests hold it to), plus its
 ``conf/solver/<name>.yaml``; its module is imported only when it is used.
 """
 

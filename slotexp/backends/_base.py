@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import ClassVar
 
 import numpy as np
 
@@ -14,7 +15,17 @@ _PINNED: list = []
 
 
 class MpcBackend(ABC):
-    """One MPC instance for one robot and horizon; :meth:`solve` is called once per MPC step."""
+    """One MPC instance for one robot and horizon; :meth:`solve` is called once per MPC step.
+
+    Each backend declares how exact it is at its default settings (its ``conf/solver`` YAML), the
+    promise the tests hold it to against the reference (Clarabel at eps 1e-9): its objective's
+    relative agreement, its plan's largest constraint violation on SLOT's QPs (N), and whether it
+    is a first-order method that stops at its eps (its violations then grow with the forces).
+    """
+
+    objective_rtol: ClassVar[float]
+    violation_tol: ClassVar[float]
+    first_order: ClassVar[bool] = False
 
     def __init__(
         self, cfg: MpcConfig, solver: SolverConfig, mass: float, inertia_body: np.ndarray, gravity: float

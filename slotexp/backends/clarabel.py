@@ -12,6 +12,8 @@ from ._cvxpy import CvxpyMpc
 @BACKENDS.register()
 class ClarabelMpc(CvxpyMpc):
     solver_name = cp.CLARABEL
+    objective_rtol = 1e-5  # an interior-point solution at its default eps
+    violation_tol = 1e-6
 
     def options(self, solver: SolverConfig, time_limit_s: float | None) -> dict:
         opts = dict(

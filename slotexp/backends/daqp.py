@@ -84,6 +84,9 @@ def daqp_settings(solver: SolverConfig) -> dict:
 class CondensedMpc(MpcBackend):
     """States eliminated, zero-forced forces removed, dense QP solved by DAQP with screened rows."""
 
+    objective_rtol = 1e-6  # an active-set solution: exact
+    violation_tol = 1e-6
+
     def __init__(
         self, cfg: MpcConfig, solver: SolverConfig, mass: float, inertia_body: np.ndarray, gravity: float
     ) -> None:

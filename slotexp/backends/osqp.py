@@ -12,6 +12,9 @@ from ._cvxpy import CvxpyMpc
 @BACKENDS.register()
 class OsqpCvxpyMpc(CvxpyMpc):
     solver_name = cp.OSQP
+    objective_rtol = 5e-3  # as osqp_direct: the same solver at the same eps
+    violation_tol = 5e-4
+    first_order = True
 
     def options(self, solver: SolverConfig, time_limit_s: float | None) -> dict:
         opts = dict(eps_abs=solver.eps_abs, eps_rel=solver.eps_rel, max_iter=solver.max_iters, polish=True)
