@@ -68,3 +68,16 @@ def test_settle_time_definition():
     # entering the band only 2 s before the end is not settling when 3 s of hold are asked for
     assert settle_time(t, cost, 0.01, hold=4.0) == 5.0
     assert np.isnan(settle_time(t, cost, 0.01, hold=4.5))
+
+
+def test_each_controller_declares_its_gait_cycle_and_table1_averages_over_it():
+    from slotexp.jobs.perturb import gait_period_steps
+
+    args = ("experiment=perturb", "experiment.cost_average=gait_cycle")
+    walk = load(*args, "plant=cosserat")  # the library's walk: 1.875 Hz at 30 Hz
+    assert gait_period_steps(walk) == round(walk.mpc.rate_hz / walk.controller.library["walk"].frequency_hz) == 16
+    # the robot's forward gait, two 0.42 s steps at the schedule controller's 50 Hz
+    forward = load(*args, "plant=cosserat", "controller=schedule", "controller.schedule=forward")
+    assert forward.mpc.rate_hz == 50.0 and gait_period_steps(forward) == 2 * 21
+    with pytest.raises(ConfigError, match="controller=paper has none.*gait_mpc, open_loop, rigid, schedule"):
+        load(*args, "controller=paper")

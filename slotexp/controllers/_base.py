@@ -31,6 +31,12 @@ class MpcController:
         self.infeasible_steps = 0
         self.steps = 0
 
+    @classmethod
+    def gait_cycle_steps(cls, cfg: SlotConfig) -> int | None:
+        """MPC steps in one cycle of the gait this controller walks under ``cfg`` (None: it walks none). A
+        controller with a cycle declares it here: Table I's ``cost_average=gait_cycle`` averages over it."""
+        return None
+
     def solve(
         self, x: np.ndarray, x_ref: np.ndarray, lever_arms: np.ndarray, plan: ContactPlan
     ) -> tuple[np.ndarray, MpcSolution, dict[str, float]]:

@@ -27,17 +27,28 @@ from . import ControlStep
 from ._base import MpcController
 
 
+def _style_library(cfg: SlotConfig) -> dict:
+    """The gait library, checked to hold ``gait.style``."""
+    library = cfg.controller.library
+    if cfg.gait.style not in library:
+        raise ConfigError(
+            f"gait.style = {cfg.gait.style!r} is not in the gait library: choose one of "
+            f"{', '.join(library) or '(none)'} (conf/library/)"
+        )
+    return library
+
+
 class GaitController(MpcController):
     """A library gait driven by a velocity and yaw-rate command; subclasses decide how the command moves."""
 
+    @classmethod
+    def gait_cycle_steps(cls, cfg: SlotConfig) -> int:
+        """The library style's clock: its cycle in MPC steps."""
+        return max(1, round(cfg.mpc.rate_hz / _style_library(cfg)[cfg.gait.style].frequency_hz))
+
     def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
         super().__init__(cfg, robot)
-        library = cfg.controller.library
-        if cfg.gait.style not in library:
-            raise ConfigError(
-                f"gait.style = {cfg.gait.style!r} is not in the gait library: choose one of "
-                f"{', '.join(library) or '(none)'} (conf/library/)"
-            )
+        library = _style_library(cfg)
         self.top = cfg.robot.leg.tendon_max_deg
         self.standing = float(tendon_angle_deg(np.array([self.weight / 4.0]), cfg.robot.actuation, self.top)[0])
         self.library = GaitLibrary.from_config(library[cfg.gait.style], self.standing, self.top, cfg.controller.blend)

@@ -53,6 +53,11 @@ def swing_steps_left(contacts: np.ndarray) -> np.ndarray:
 class RigidController(MpcController):
     """Gait matrix, footstep planner, MPC and swing parabolas for a rigid quadruped."""
 
+    @classmethod
+    def gait_cycle_steps(cls, cfg: SlotConfig) -> int:
+        """The gait matrix's period: its rows' durations in MPC steps."""
+        return sum(int(row[0]) for row in cfg.gait.phases)
+
     def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
         super().__init__(cfg, robot)
         self.gait = GaitMatrix(cfg.gait.phases)

@@ -26,6 +26,12 @@ from ._base import MpcController
 
 @CONTROLLERS.register()
 class ScheduleController(MpcController):
+    @classmethod
+    def gait_cycle_steps(cls, cfg: SlotConfig) -> int:
+        """The schedule's cycle: its steps, each a whole number of MPC ticks (config.check_schedule_ticks)."""
+        schedule = cfg.schedules[cfg.controller.schedule]
+        return round(schedule.step_s * cfg.mpc.rate_hz) * len(schedule.steps)
+
     def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
         super().__init__(cfg, robot)
         self.schedule = cfg.schedules[cfg.controller.schedule]

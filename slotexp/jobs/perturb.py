@@ -44,17 +44,24 @@ class PerturbExperiment:
 
 
 def gait_period_steps(cfg: SlotConfig) -> int:
-    """MPC steps in one cycle of the gait the controller walks (its library style's clock; the rigid
-    controller's gait matrix period)."""
-    if cfg.controller.name == "rigid":
-        return sum(int(row[0]) for row in cfg.gait.phases)
-    library = cfg.controller.library
-    if cfg.controller.name not in ("gait_mpc", "open_loop") or cfg.gait.style not in library:
+    """MPC steps in one cycle of the gait the controller walks, as the controller declares it
+    (:meth:`MpcController.gait_cycle_steps`)."""
+    from ..controllers import CONTROLLERS
+    from ..controllers._base import MpcController
+
+    steps = CONTROLLERS.get(cfg.controller.name).gait_cycle_steps(cfg)
+    if steps is None:
+        cycled = [
+            name
+            for name, cls in CONTROLLERS.load_all().items()
+            if cls.gait_cycle_steps.__func__ is not MpcController.gait_cycle_steps.__func__
+        ]
         raise ConfigError(
-            "experiment.cost_average=gait_cycle needs a gait controller (controller=gait_mpc or "
-            "open_loop, plant=cosserat; or controller=rigid): the other controllers have no gait cycle"
+            f"experiment.cost_average=gait_cycle needs a controller that walks a gait cycle: "
+            f"controller={cfg.controller.name} has none (use cost_average=step, or controller="
+            f"{', '.join(cycled)})"
         )
-    return max(1, round(cfg.mpc.rate_hz / library[cfg.gait.style].frequency_hz))
+    return steps
 
 
 def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
