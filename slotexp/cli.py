@@ -18,6 +18,8 @@ import sys
 import tempfile
 import time
 import types
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -374,24 +376,19 @@ def _hydra_task(cfg) -> None:
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
-        checked = load_config(cfg)
-        experiment = EXPERIMENTS.get(checked.experiment.name)
-        warning = envelope_warning(checked) if experiment.walks_gait else None
-        if warning is not None:
-            typer.echo(f"warning: {warning}", err=True)
-        started = time.monotonic()
-        run_experiment(checked, out_dir, OmegaConf.to_yaml(cfg))
-        summary = []
-        if experiment.summary is not None and (out_dir / experiment.summary).is_file():
-            summary.append((out_dir / experiment.summary).read_text().rstrip())
-        _say(*summary, f"done in {time.monotonic() - started:.0f} s; outputs in:", str(out_dir), out_dir=out_dir)
-        return
-    except UserError as exc:
-        fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
-    except ModuleNotFoundError as exc:
-        _fail_on_missing_extra(exc)
-    except OSError as exc:
-        _fail_on_storage(exc, out_dir)
+        with _one_line_failures(out_dir):
+            checked = load_config(cfg)
+            experiment = EXPERIMENTS.get(checked.experiment.name)
+            warning = envelope_warning(checked) if experiment.walks_gait else None
+            if warning is not None:
+                typer.echo(f"warning: {warning}", err=True)
+            started = time.monotonic()
+            run_experiment(checked, out_dir, OmegaConf.to_yaml(cfg))
+            summary = []
+            if experiment.summary is not None and (out_dir / experiment.summary).is_file():
+                summary.append((out_dir / experiment.summary).read_text().rstrip())
+            _say(*summary, f"done in {time.monotonic() - started:.0f} s; outputs in:", str(out_dir), out_dir=out_dir)
+            return
     except KeyboardInterrupt as exc:
         signum, word = _stopped_by(exc)
         typer.echo(f"{word}: the logs written so far are valid and readable in {out_dir}", err=True)
@@ -403,6 +400,20 @@ def _hydra_task(cfg) -> None:
             sys.stderr.flush()
             os._exit(128 + signum)
         raise SystemExit(128 + signum) from None
+
+
+@contextmanager
+def _one_line_failures(out_dir: Path) -> Iterator[None]:
+    """What a run's user can fix ends in one line and exit 2: bad input (:class:`UserError`), a missing
+    optional dependency, a write the file system refused. Anything else keeps its traceback."""
+    try:
+        yield
+    except UserError as exc:
+        fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+    except ModuleNotFoundError as exc:
+        _fail_on_missing_extra(exc)
+    except OSError as exc:
+        _fail_on_storage(exc, out_dir)
 
 
 # the file system refusing a write: full, over quota, read-only, not permitted
@@ -518,13 +529,9 @@ def _hardware_task(cfg) -> None:
     from .jobs._logged import git_commit
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    try:
+    with _one_line_failures(out_dir):
         hw_cfg = load_hardware_config(cfg)
         result = run_hardware(hw_cfg, out_dir, OmegaConf.to_yaml(cfg), lambda m: typer.echo(m, err=True), git_commit())
-    except UserError as exc:
-        fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
-    except ModuleNotFoundError as exc:
-        _fail_on_missing_extra(exc)
     if result.outcome is not None and result.outcome.steps >= 2:
         from .hardware.report import report
 

@@ -888,3 +888,18 @@ def test_a_full_disk_ends_in_one_line_and_keeps_what_was_written(tmp_path: Path)
     assert len(errors) == 1 and errors[0].startswith(f"error: {run_dir}/")  # the file it could not write
     assert "No space left on device" in errors[0] and "slot figures" in errors[0]
     assert read_log(run_dir / "logs" / "baseline.mcap")["/state"].shape[0] > 0
+
+
+def test_slot_hardware_on_a_full_disk_ends_in_one_line(tmp_path: Path) -> None:
+    # the same failure class as slot run's: the log cannot be opened (ENOSPC), one line naming it, exit 2
+    prelude = (
+        "import errno, slotexp.record as record\n"
+        "def full(self, path, *args, **kwargs):\n"
+        "    raise OSError(errno.ENOSPC, 'No space left on device', str(path))\n"
+        "record.Recorder.__init__ = full"
+    )
+    run_dir = tmp_path / "run"
+    proc = slot_after(prelude, "hardware", "odometry=sim", "duration=0.2", f"hydra.run.dir={run_dir}", cwd=tmp_path)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("error")]
+    assert len(errors) == 1 and "No space left on device" in errors[0] and "hardware.mcap" in errors[0], errors
