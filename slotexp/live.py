@@ -30,7 +30,6 @@ from .foxglove_scene import LIVE_PATH_REFRESH_S, SCENE_TOPICS, TRANSFORMS_TOPIC,
 from .record import (
     _RESERVED_FIELD,
     POSE_IN_FRAME_SCHEMA,
-    POSE_TOPIC,
     _dumps,
     _encode,
     _schema_for,
@@ -40,6 +39,7 @@ from .record import (
     pose_message,
 )
 from .scene import SceneFrame
+from .telemetry import POSE
 
 DEFAULT_PORT = 8765  # Foxglove's default for a WebSocket connection
 HOST = "127.0.0.1"  # localhost only: the view is for the machine running the loop
@@ -124,12 +124,12 @@ class LiveView:
     def write_pose(self, t: float, position: Any, quaternion_wxyz: Any) -> None:
         """Publish the pose and the transform, as the log writes them (and keep the view's time)."""
         self._keep_time(t)
-        if self._idle((POSE_TOPIC, TRANSFORMS_TOPIC)):
+        if self._idle((POSE, TRANSFORMS_TOPIC)):
             return
         pose, p, q = pose_message(t, position, quaternion_wxyz)
-        chan = self._json_channel(POSE_TOPIC, "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA)
+        chan = self._json_channel(POSE, "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA)
         if chan.has_sinks():
-            chan.log(_encode(pose, POSE_TOPIC), log_time=_time_ns(t))
+            chan.log(_encode(pose, POSE), log_time=_time_ns(t))
         self.write_encoded(TRANSFORMS_TOPIC, t, self._transforms.message(t, p, q))
 
     def write_encoded(self, topic: str, t: float, data: bytes) -> None:

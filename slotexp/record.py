@@ -48,10 +48,8 @@ __all__ = [
     "Recorder",
     "flatten",
     "read_log",
-    "POSE_TOPIC",
 ]
 
-POSE_TOPIC = POSE  # the torso pose, written as foxglove.PoseInFrame
 
 _MAGIC = b"\x89MCAP0\r\n"
 _NS_PER_S = 1_000_000_000
@@ -347,8 +345,8 @@ class Recorder:
         ``/transforms`` (``FrameTransforms``, protobuf: the frame tree of Foxglove's 3D panel)."""
         self._check_open()
         pose, p, q = pose_message(t, position, quaternion_wxyz, frame_id)
-        chan = self._channel(POSE_TOPIC, "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA)
-        self._emit(chan, _time_ns(t), _encode(pose, POSE_TOPIC))
+        chan = self._channel(POSE, "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA)
+        self._emit(chan, _time_ns(t), _encode(pose, POSE))
         self.write_encoded(TRANSFORMS_TOPIC, t, self._transforms.message(t, p, q, frame_id, child_frame_id))
 
     def write_encoded(self, topic: str, t: float, data: bytes) -> None:

@@ -13,8 +13,6 @@ from .errors import UserError
 from .mpc import CONSTRAINT_GROUPS
 from .record import Log, read_log
 
-STATE_FIELDS = ("rpy", "p", "omega", "v")
-
 
 @dataclass
 class RunData:
@@ -43,7 +41,7 @@ class RunData:
 
 
 def _states(df: pd.DataFrame, n: int) -> np.ndarray:
-    cols = [f"{f}.{i}" for f in STATE_FIELDS for i in range(3)]
+    cols = [f"{f}.{i}" for f in T.STATE_FIELDS for i in range(3)]
     return df[cols].to_numpy(dtype=float)[:n]
 
 

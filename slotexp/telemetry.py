@@ -48,6 +48,7 @@ RIGID = "/rigid"
 SERVOS = "/servos"
 LOOP = "/loop"
 
+STATE_FIELDS = ("rpy", "p", "omega", "v")  # a 12-state's message: 3 numbers each
 _STATE = "rpy, p, omega, v (3 each: roll-pitch-yaw rad, position m, body rate rad/s, velocity m/s)"
 TOPICS: dict[str, str] = {
     POSE: "position (m), orientation (quaternion): the torso in the world",
@@ -75,8 +76,8 @@ TOPICS: dict[str, str] = {
 
 
 def state_message(x: np.ndarray) -> dict[str, Any]:
-    """A 12-state as its message (:data:`STATE`'s fields)."""
-    return {"rpy": x[0:3], "p": x[3:6], "omega": x[6:9], "v": x[9:12]}
+    """A 12-state as its message (:data:`STATE`'s fields, :data:`STATE_FIELDS`)."""
+    return {name: x[3 * i : 3 * i + 3] for i, name in enumerate(STATE_FIELDS)}
 
 
 # --------------------------------------------------------------------------- sinks

@@ -92,7 +92,7 @@ class _TraceSink:
     def write(self, topic: str, t: float, message) -> None:
         if topic == T.STATE:
             self.t.append(t)
-            self.x.append(np.concatenate([message[k] for k in ("rpy", "p", "omega", "v")]))
+            self.x.append(np.concatenate([message[k] for k in T.STATE_FIELDS]))
         elif topic == T.LEGS_CONTACT:
             self.normal.append(np.asarray(message["normal_n"], float).copy())
 

@@ -177,7 +177,7 @@ class ReplayOdometry:
 
     def start(self) -> None:
         from ..record import LogReadError, read_log
-        from ..runlog import STATE_FIELDS, find_logs
+        from ..runlog import find_logs
 
         path = Path(self.path).expanduser()
         logs = find_logs(path) if path.exists() else []
@@ -191,7 +191,7 @@ class ReplayOdometry:
             raise UserError(f"{logs[0]}: the log has no /state messages to replay")
         df = log[T.STATE]
         self._t = df["t"].to_numpy(float)
-        self._x = df[[f"{f}.{i}" for f in STATE_FIELDS for i in range(3)]].to_numpy(float)
+        self._x = df[[f"{f}.{i}" for f in T.STATE_FIELDS for i in range(3)]].to_numpy(float)
         self._t0 = self.clock()
 
     def latest(self) -> OdometrySample | None:
