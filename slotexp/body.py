@@ -13,6 +13,12 @@ import numpy as np
 from .jit import njit
 
 
+def horizontal(xy) -> np.ndarray:
+    """A horizontal offset (x, y) as a 3-vector (z = 0), e.g. ``robot.torso.com_offset``: the torso's mass
+    centre from its box's centre, body frame."""
+    return np.array([*xy, 0.0][:3], dtype=float)
+
+
 @njit(cache=True)
 def quat_to_rot(q: np.ndarray) -> np.ndarray:
     w, x, y, z = q[0], q[1], q[2], q[3]

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .body import horizontal
 from .config import RobotConfig
 
 
@@ -50,7 +51,7 @@ def build_robot(cfg: RobotConfig) -> RobotModel:
     yaw = np.deg2rad(np.asarray(cfg.leg.yaw_deg, dtype=float))
     # Each leg sits on the torso's bottom face at the corner its yaw points out of.
     corners = np.column_stack([np.sign(np.cos(yaw)) * lx / 2, np.sign(np.sin(yaw)) * ly / 2, np.full(4, -lz / 2)])
-    corners = corners - np.array([*cfg.torso.com_offset, 0.0])  # relative to the torso's own mass centre
+    corners = corners - horizontal(cfg.torso.com_offset)  # relative to the torso's own mass centre
     shape = rest_shape_points(cfg.leg.rest_shape_coeffs, cfg.leg.length)
     reach = shape[-1, 0] - shape[0, 0]
     drop = shape[0, 1] - shape[-1, 1]  # root height above the tip

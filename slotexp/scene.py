@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .body import quat_to_rot
+from .body import horizontal, quat_to_rot
 from .jit import njit
 
 FORCE_SCALE_M_PER_N = 0.01
@@ -152,7 +152,7 @@ class SceneTrack:
         self.leg_names = tuple(leg_names)
         self.torso_size = np.asarray(torso_size, dtype=float)
         # the mass centre (the pose's position) from the box's centre, body frame (robot.torso.com_offset)
-        self.com_offset = np.array([*com_offset, 0.0][:3], dtype=float)
+        self.com_offset = horizontal(com_offset)
         self._reference = _Path(spacing, max_points)
         self._actual = _Path(spacing, max_points)
 

@@ -10,7 +10,7 @@ from matplotlib.animation import FuncAnimation, PillowWriter
 
 from .. import telemetry as T
 from ..atomic import replacing
-from ..body import quat_to_rot
+from ..body import horizontal, quat_to_rot
 from .style import LEG_COLOURS, new_figure
 
 BOX_EDGES = [(0, 1), (1, 3), (3, 2), (2, 0), (4, 5), (5, 7), (7, 6), (6, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
@@ -36,7 +36,7 @@ def animate(
 ) -> Path:
     """``legs[name]`` is (frames, N, 3) in the world frame; one frame per entry of ``t``; ``positions`` are the
     torso's mass centre, ``com_offset`` (body frame, horizontal) where it sits from the box's centre."""
-    offset = np.zeros(3) if com_offset is None else np.array([*com_offset, 0.0][:3], dtype=float)
+    offset = np.zeros(3) if com_offset is None else horizontal(com_offset)
     fig = new_figure(9, 4.2)
     side, top = fig.subplots(1, 2)
     everything = np.concatenate([v.reshape(-1, 3) for v in legs.values()] + [positions])

@@ -37,7 +37,7 @@ from numba import prange
 
 from .. import telemetry as T
 from ..actuation import tendon_angle_deg
-from ..body import advance_quaternion, euler_to_quat, quat_to_euler, quat_to_rot, solve_spd
+from ..body import advance_quaternion, euler_to_quat, horizontal, quat_to_euler, quat_to_rot, solve_spd
 from ..config import SlotConfig, TorsoConfig
 from ..errors import DivergenceError
 from ..jit import njit
@@ -61,12 +61,7 @@ def belly_points(torso: TorsoConfig) -> np.ndarray:
         return np.zeros((0, 3))
     lx, ly, lz = torso.size
     points = np.array([[a * lx / 2, b * ly / 2, -lz / 2] for a in (-1.0, 0.0, 1.0) for b in (-1.0, 0.0, 1.0)])
-    return points - com_offset(torso)
-
-
-def com_offset(torso: TorsoConfig) -> np.ndarray:
-    """The torso's mass centre from its box's centre (3,), body frame (``robot.torso.com_offset``, horizontal)."""
-    return np.array([*torso.com_offset, 0.0])
+    return points - horizontal(torso.com_offset)
 
 
 def pose_between(start: np.ndarray, end: np.ndarray, s: float) -> np.ndarray:
@@ -809,7 +804,7 @@ class CosseratPlant:
         # leg roots on the torso's bottom face, relative to the torso's mass centre
         self.corners = np.column_stack(
             [np.sign(np.cos(self.yaw)) * lx / 2, np.sign(np.sin(self.yaw)) * ly / 2, np.full(4, -lz / 2)]
-        ) - com_offset(cfg.robot.torso)
+        ) - horizontal(cfg.robot.torso.com_offset)
         drop = m.rest_pos[0, 1] - m.rest_pos[-1, 1]
         # The torso starts level, with the resting feet just touching the ground; settling lowers it
         # onto the scenario's offset pose (see _settle_legs).
