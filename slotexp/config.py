@@ -162,9 +162,8 @@ class ContactConfig:
     # the feet's friction at rest, above the sliding `friction` (a rubber-like pad holds more than it drags;
     # slotexp.soft.loads.friction_coefficient); None: plain Coulomb friction. The torso's underside keeps plain.
     static_friction: float | None = num_field(None, lo=0.0, unit="")
-    stribeck_velocity: float = num_field(
-        0.01, lo=0.0, lo_open=True, unit="m/s"
-    )  # the speed it falls to `friction` over
+    # the slip speed over which it falls to `friction` (a Gaussian Stribeck curve)
+    stribeck_velocity: float = num_field(0.01, lo=0.0, lo_open=True, unit="m/s")
 
 
 @dataclass

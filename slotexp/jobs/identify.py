@@ -250,8 +250,14 @@ class Observations:
 TABLE = ("gait", "compass_deg", "distance_per_cycle_mm", "height_mm")
 
 
-def robot_table(cfg: SlotConfig, names: list[str]) -> pd.DataFrame:
+def _held_height(cfg: SlotConfig) -> float:
+    """The torso height every gait is held to (``experiment.height_mm``; NaN: not observed)."""
     height = cfg.experiment.height_mm
+    return math.nan if height is None else float(height)
+
+
+def robot_table(cfg: SlotConfig, names: list[str]) -> pd.DataFrame:
+    height = _held_height(cfg)
     rows = []
     for name in names:
         s = cfg.schedules[name]
@@ -261,7 +267,7 @@ def robot_table(cfg: SlotConfig, names: list[str]) -> pd.DataFrame:
                 "gait": name,
                 "compass_deg": math.nan if s.heading_deg is None else float(s.heading_deg),
                 "distance_per_cycle_mm": math.nan if d is None else d * 1e3,
-                "height_mm": math.nan if height is None else float(height),
+                "height_mm": height,
             }
         )
     return pd.DataFrame(rows)
@@ -350,8 +356,7 @@ def load_observations(cfg: SlotConfig, table_spec: str, track_specs: dict[str, s
     if table_spec == "robot":
         table = robot_table(cfg, names)
     else:
-        height = math.nan if cfg.experiment.height_mm is None else float(cfg.experiment.height_mm)
-        table = read_table(Path(table_spec).expanduser(), names, height)
+        table = read_table(Path(table_spec).expanduser(), names, _held_height(cfg))
     return Observations(table, {g: read_track(s) for g, s in track_specs.items()})
 
 
