@@ -44,9 +44,9 @@ def build_robot(cfg: RobotConfig) -> RobotModel:
     A rigid quadruped (``robot.rigid.model`` set) is read from its MuJoCo model instead.
     """
     if cfg.rigid.model:
-        from .rigid.model import robot_model  # MuJoCo is imported only for rigid robots
+        from .rigid.model import mass_properties  # MuJoCo is imported only for rigid robots
 
-        return robot_model(cfg)
+        return RobotModel(**mass_properties(cfg))
     lx, ly, lz = cfg.torso.size
     yaw = np.deg2rad(np.asarray(cfg.leg.yaw_deg, dtype=float))
     # Each leg sits on the torso's bottom face at the corner its yaw points out of.

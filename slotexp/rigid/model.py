@@ -15,6 +15,7 @@ foot's own is larger.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -22,7 +23,6 @@ import numpy as np
 from ..body import euler_to_quat
 from ..config import RigidConfig, RobotConfig
 from ..errors import ConfigError
-from ..robot import RobotModel
 from . import model_path
 
 JOINTS = ("hip", "thigh", "calf")
@@ -203,8 +203,10 @@ def composite_inertia(model: mujoco.MjModel, data: mujoco.MjData, about: np.ndar
     return total
 
 
-def robot_model(cfg: RobotConfig, gravity: float = 9.81) -> RobotModel:
-    """Mass, inertia about the CoM, hips and nominal feet of the rigid robot, from its MuJoCo model."""
+def mass_properties(cfg: RobotConfig, gravity: float = 9.81) -> dict[str, Any]:
+    """Mass, inertia about the CoM, hips and nominal feet of the rigid robot, from its MuJoCo model: the
+    fields of :class:`slotexp.robot.RobotModel` (which builds itself from them, so this module does not
+    import it)."""
     rigid = cfg.rigid
     model = load_model(rigid, 1e-3, gravity)
     data = mujoco.MjData(model)
@@ -215,7 +217,7 @@ def robot_model(cfg: RobotConfig, gravity: float = 9.81) -> RobotModel:
     com = data.subtree_com[legs.base].copy()
     feet = data.xpos[legs.foot_body].copy()
     feet[:, 2] -= legs.foot_radius
-    return RobotModel(
+    return dict(
         names=tuple(cfg.leg.names),
         mass=float(model.body_subtreemass[legs.base]),
         inertia_body=composite_inertia(model, data, com),  # the base is level: body frame = world frame
