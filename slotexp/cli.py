@@ -25,7 +25,7 @@ from typing import Any
 
 import typer
 
-from .config import validate
+from .composition import validate
 from .configtree import CONF_DIR
 from .errors import UserError, missing_extra
 
@@ -124,10 +124,10 @@ def _claim_run_dir(overrides: list[str], multirun: bool) -> None:
 
 def register_schemas() -> None:
     """Every schema the CLI's configs compose onto: ``slot run``'s and ``slot hardware``'s."""
-    from .config import register_schemas as register_run_schemas
+    from .composition import register_schemas as register_run_schemas
     from .hardware.config import register_hardware_schemas
 
-    register_run_schemas()
+    register_run_schemas(CONF_DIR)
     register_hardware_schemas()
 
 
@@ -164,10 +164,11 @@ def _split(args: list[str]) -> tuple[list[str], bool, bool]:
     return overrides, multirun, info
 
 
-def unknown_key(key: str, root: type, experiment: type | None) -> str | None:
+def unknown_key(key: str, root: type, sections: dict[str, type] | None = None) -> str | None:
     """The complaint for a dotted override key that names no field of the schema (with the closest field
     as a suggestion), or None when it names one or leads where the schema cannot tell (Any, a leaf).
-    A dict accepts any key (scenario names), a list an index."""
+    A dict accepts any key (scenario names), a list an index. ``sections`` gives the schema of a top-level
+    section whose type the root leaves open or to a variant (``experiment``, ``plant``, ...)."""
     import dataclasses
     import difflib
     import typing
@@ -193,7 +194,7 @@ def unknown_key(key: str, root: type, experiment: type | None) -> str | None:
             if close:
                 return f"unknown key {key} (did you mean {'.'.join([*parts[:i], close[0]])}?)"
             return f"unknown key {key}: {prefix or 'the config'} has {', '.join(sorted(hints))}"
-        tp = experiment if (i == 0 and part == "experiment") else hints[part]
+        tp = (sections or {}).get(part, hints[part]) if i == 0 else hints[part]
         if typing.get_origin(tp) in (typing.Union, types.UnionType):
             args = [a for a in typing.get_args(tp) if a is not type(None)]
             tp = args[0] if len(args) == 1 else Any
@@ -292,7 +293,7 @@ def precheck(
             try:
                 cfg = compose(config_name, overrides=list(combo))
             except (HydraException, OmegaConfBaseException) as exc:
-                fail(_compose_message(exc))
+                fail(_variant_setting_message(exc) or _compose_message(exc))
             except yaml.YAMLError as exc:  # a config file that is not YAML (edited by hand, truncated)
                 fail(yaml_error_line(exc))
             try:
@@ -312,7 +313,7 @@ def precheck(
 
             for p in hydra_settings:
                 key = p.key_or_group
-                problem = unknown_key(key[len("hydra.") :], HydraConf, None) if key.startswith("hydra.") else None
+                problem = unknown_key(key[len("hydra.") :], HydraConf) if key.startswith("hydra.") else None
                 if problem:
                     fail(problem.replace("unknown key ", "unknown key hydra.").replace("mean ", "mean hydra."))
             first = next(iter(itertools.product(*choices)), ())
@@ -326,21 +327,79 @@ def precheck(
 
 def _check_keys(parsed: list, groups: tuple[str, ...], root: type | None) -> None:
     """Every ``key=value`` and ``+key=value`` names a field of the schema (Hydra's own hint, "use
-    +key=value", would add a key that nothing reads)."""
+    +key=value", would add a key that nothing reads). A plant's, controller's or backend's setting is
+    looked up in the variant the overrides choose, or, where they choose none, in any of its kind."""
+    from .composition import VARIANT_KINDS, declared_schemas
     from .config import SlotConfig
     from .jobs import EXPERIMENTS
 
-    chosen = [o.value() for o in parsed if o.key_or_group == "experiment" and isinstance(o.value(), str)]
-    experiment = None
-    if chosen and chosen[0] in EXPERIMENTS.names():
-        experiment = EXPERIMENTS.get(chosen[0]).schema
+    root = root or SlotConfig
+    chosen = {
+        o.key_or_group: o.value()
+        for o in parsed
+        if o.key_or_group in ("experiment", *VARIANT_KINDS) and isinstance(o.value(), str)
+    }
+    sections = {}
+    if chosen.get("experiment") in EXPERIMENTS.names():
+        sections["experiment"] = EXPERIMENTS.get(chosen["experiment"]).schema
     for o in parsed:
         key = o.key_or_group
         if "/" in key or key.split("@")[0] in groups or o.is_delete():
             continue
-        problem = unknown_key(key, root or SlotConfig, experiment)
+        head = key.split(".")[0]
+        if head in VARIANT_KINDS and "." in key:
+            problem = _variant_key_problem(key, root, sections, head, chosen.get(head), declared_schemas(head))
+        else:
+            problem = unknown_key(key, root, sections)
         if problem:
             fail(problem)
+
+
+def _variant_key_problem(
+    key: str, root: type, sections: dict, kind: str, chosen: str | None, schemas: dict[str, type]
+) -> str | None:
+    """``key`` in a variant's section: a field of the chosen variant (or of some variant, none chosen)."""
+    problems = {name: unknown_key(key, root, {**sections, kind: schema}) for name, schema in schemas.items()}
+    having = sorted(name for name, problem in problems.items() if problem is None and name != "")
+    if chosen is not None:  # a variant without its own schema has the base's settings
+        problems.setdefault(chosen, problems[""])
+        if problems[chosen] is None:
+            return None
+        if having:
+            return (
+                f"{key} is a setting of {' or '.join(f'{kind}={n}' for n in having)}, not of {kind}={chosen}: choose "
+                f"{kind}={having[0]}, or drop the setting"
+            )
+        return problems[chosen]
+    if any(problem is None for problem in problems.values()):
+        return None
+    suggestions = [p for p in problems.values() if "did you mean" in p]
+    return (suggestions or [problems[""]])[0]
+
+
+def _variant_setting_message(exc: BaseException) -> str | None:
+    """One line for a plant's, controller's or backend's setting given to a run whose variant lacks it
+    (the variant comes from a default or another group, so the overrides alone could not tell)."""
+    import re
+
+    from .composition import VARIANT_KINDS, declared_schemas
+    from .config import SlotConfig
+
+    found = re.search(r"Could not override '([a-z_]+)\.([^']+)'", str(exc))
+    if found is None or found.group(1) not in VARIANT_KINDS:
+        return None
+    kind, key = found.groups()
+    having = sorted(
+        name
+        for name, schema in declared_schemas(kind).items()
+        if name and unknown_key(f"{kind}.{key}", SlotConfig, {kind: schema}) is None
+    )
+    if not having:
+        return None
+    return (
+        f"{kind}.{key} is a setting of {' or '.join(f'{kind}={n}' for n in having)}, which this run does not use: add "
+        f"{kind}={having[0]}, or drop the setting"
+    )
 
 
 def _compose_message(exc: BaseException) -> str:
@@ -648,7 +707,7 @@ def figures(
     ),
 ) -> None:
     """Rebuild a run's tables and figures from its MCAP logs alone."""
-    from .config import config_from_yaml
+    from .composition import config_from_yaml
     from .jobs import EXPERIMENTS
     from .jobs import validate as val
     from .record import is_closed, read_log

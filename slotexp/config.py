@@ -1,17 +1,16 @@
-"""Typed configuration: dataclass schemas, physical-range checks, Hydra registration.
+"""Typed configuration: the root's dataclass schemas and their physical-range checks.
 
 The schemas are the single source of truth for what a run may be configured with.
 Hydra merges the YAML tree in ``conf/`` onto them (so an unknown key or a value of
-the wrong type is rejected while composing), and :func:`validate` then checks every
-declared physical range so a bad value fails before any work starts, with one line
-that names the key and the allowed range.
+the wrong type is rejected while composing), and :func:`check_fields` then checks
+every declared physical range so a bad value fails before any work starts, with one
+line that names the key and the allowed range.
 
-Each experiment's own schema (``experiment.*``) lives beside the experiment in
-``slotexp/jobs/<name>.py``; :func:`validate` runs its ``check`` for the rules that
-span the config (a scenario it names must exist, ...).
-
-This module imports no Hydra at module level: the numerical core uses the
-dataclasses; only :func:`register_schemas` touches Hydra's ConfigStore.
+This module is a leaf: it imports nothing of slotexp but its errors. Each variant
+(plant, controller, QP backend, experiment) keeps its own settings beside its code,
+as a subclass of the base here (``PlantConfig``, ``ControllerConfig``, ``SolverConfig``)
+or an experiment's schema, with its own ``check``; :mod:`slotexp.composition` joins
+them, checks the names against the registries and registers the schemas with Hydra.
 """
 
 from __future__ import annotations
@@ -19,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,9 +48,8 @@ __all__ = [
     "vec_field",
     "choice_field",
     "check_scenario",
-    "validate",
-    "config_from_yaml",
-    "register_schemas",
+    "check_fields",
+    "check_library",
 ]
 
 
@@ -79,28 +76,9 @@ def vec_field(
     )
 
 
-def choice_field(default: str, *choices: str, among: Callable[[], tuple[str, ...]] | None = None) -> Any:
-    """A string field restricted to ``choices``, or to what ``among()`` lists when it is checked
-    (a registry's variants: the list follows the modules present)."""
-    return field(default=default, metadata={"choices": among or choices})
-
-
-def _backend_names() -> tuple[str, ...]:
-    from .backends import BACKENDS
-
-    return BACKENDS.names()
-
-
-def _plant_names() -> tuple[str, ...]:
-    from .plants import PLANTS
-
-    return PLANTS.names()
-
-
-def _controller_names() -> tuple[str, ...]:
-    from .controllers import CONTROLLERS
-
-    return CONTROLLERS.names()
+def choice_field(default: str, *choices: str) -> Any:
+    """A string field restricted to ``choices``."""
+    return field(default=default, metadata={"choices": choices})
 
 
 # --------------------------------------------------------------------------- robot
@@ -323,7 +301,7 @@ class SolverConfig:
     or the deadline counts as failed and the controller applies the last feasible input.
     """
 
-    name: str = choice_field("daqp", among=_backend_names)
+    name: str = "daqp"  # a module of slotexp/backends (checked against the registry: slotexp.composition)
     eps_abs: float = num_field(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
     eps_rel: float = num_field(1.0e-6, lo=0.0, lo_open=True, hi=1.0, unit="")
     max_iters: int = num_field(10000, lo=1, unit="")
@@ -334,11 +312,10 @@ class SolverConfig:
 
 @dataclass
 class PlantConfig:
-    name: str = choice_field("ideal", among=_plant_names)
-    integrator: str = choice_field("implicit", "implicit", "symplectic")  # soft legs only
-    # soft legs, implicit step: steps a factored Jacobian may serve (1: a fresh one every step); a change of
-    # contact, friction regime or tendon state refreshes it sooner (slotexp/soft/integrators.py)
-    jacobian_age: int = num_field(1, lo=1, hi=100000, unit="steps")
+    """Which plant (``slotexp/plants``): the settings every plant has. A plant with settings of its own
+    declares a subclass as its ``schema`` (the soft plant's integrator), composed by its YAML."""
+
+    name: str = "ideal"  # a module of slotexp/plants (checked against the registry: slotexp.composition)
 
 
 @dataclass
@@ -366,32 +343,16 @@ class GaitStyleConfig:
 
 @dataclass
 class ControllerConfig:
-    """Which controller turns the MPC's plan into commands (``slotexp/controllers``), and its settings.
+    """Which controller turns the MPC's plan into commands (``slotexp/controllers``): the settings every
+    controller has. A controller with settings of its own declares a subclass as its ``schema`` (the gait
+    controllers' gains, the rigid controller's footholds, the schedule player's schedule), composed by its YAML.
 
-    ``library`` and the gains are used by the gait controllers (``gait_mpc``, ``open_loop``).
+    ``library`` is the soft legs' gait library (``conf/library/``), which the gait controllers play and
+    ``experiment=gait_search`` writes.
     """
 
-    name: str = choice_field("paper", among=_controller_names)
+    name: str = "paper"  # a module of slotexp/controllers (checked against the registry: slotexp.composition)
     library: dict[str, GaitStyleConfig] = field(default_factory=dict)  # style name -> style (conf/library/)
-    # gait_mpc: each step adds this fraction of the MPC's planned change of velocity (and yaw rate) to the gait command
-    velocity_gain: float = num_field(0.02, lo=0.0, hi=1.0, unit="")
-    yaw_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
-    # gait_mpc: the fraction of the legs' common normal-force offset (height) applied each step; the rest, and
-    # the legs' differences (attitude), are averaged over offset_cycles gait cycles (slotexp/controllers/gait_mpc.py)
-    height_at_once: float = num_field(0.25, lo=0.0, hi=1.0, unit="")
-    offset_cycles: int = num_field(2, lo=1, hi=8, unit="cycles")
-    # gait_mpc: rate (1/s) of the integral trim that levels the stance: each leg's tendon moves by the corner
-    # height the measured roll and pitch put it off by (slotexp/controllers/gait_mpc.py); 0 (default) turns it off
-    attitude_trim: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s")
-    # how the two primitives bracketing a direction combine: whole cycles of one or the other, their
-    # schedules mixed, or one primitive with their parameters interpolated (slotexp/locomotion/library.py)
-    blend: str = choice_field("cycles", "cycles", "schedules", "parameters")
-    # rigid: the lever arms of the MPC's B_k. "horizon": each step's footholds (feet standing, swing targets,
-    # and the footholds of steps that land later in the horizon) relative to the CoM predicted for that step
-    # (seed 001); "current": the feet where they stand and the swing targets, relative to the CoM now, one B
-    footholds: str = choice_field("horizon", "horizon", "current")
-    # schedule: which of the schedules (conf/schedule/, `schedules.<name>`) it plays
-    schedule: str = "forward"
 
 
 # --------------------------------------------------------------------------- schedules
@@ -553,7 +514,7 @@ def _walk(obj: Any, path: str) -> None:
             _check_finite(sub, value)
             meta = dict(f.metadata)
             if "choices" in meta:
-                choices = meta["choices"]() if callable(meta["choices"]) else meta["choices"]
+                choices = meta["choices"]
                 if value not in choices:
                     raise ConfigError(f"{sub} = {value!r} is not supported: choose one of {', '.join(choices)}")
             if "length" in meta and isinstance(value, list):
@@ -585,8 +546,12 @@ def _check_gait(gait: GaitConfig) -> None:
             raise ConfigError(f"gait.phases[{i}] contact flags must be 0 (swing) or 1 (stance), got {row[1:]}")
 
 
-def validate(cfg: SlotConfig) -> SlotConfig:
-    """Check every declared range and the cross-field rules; raise :class:`ConfigError`."""
+def check_fields(cfg: SlotConfig) -> SlotConfig:
+    """Every declared range and the rules among the root schema's own fields; raise :class:`ConfigError`.
+
+    The rules that belong to a variant (a plant, controller, backend or experiment) are its own ``check``,
+    which :func:`slotexp.composition.validate` runs after this.
+    """
     _walk(cfg, "")
     leg = cfg.robot.leg
     if len(leg.names) != 4:
@@ -623,19 +588,24 @@ def validate(cfg: SlotConfig) -> SlotConfig:
                 f"robot.contact.static_friction = {contact.static_friction:g} is below the sliding friction "
                 f"{contact.friction:g}: give static_friction >= friction (or null: plain Coulomb friction)"
             )
-        symplectic = cfg.plant.name == "cosserat" and cfg.plant.integrator == "symplectic"
-        if symplectic or cfg.leg_load.integrator == "symplectic":
+        if cfg.leg_load.integrator == "symplectic":
             raise ConfigError(
                 "robot.contact.static_friction is a law of the implicit step only: drop it, or use "
-                "plant.integrator=implicit (and leg_load.integrator=implicit)"
+                "leg_load.integrator=implicit"
             )
-    if leg.model == "paper" and cfg.plant.name == "cosserat" and cfg.plant.integrator != "symplectic":
+    if cfg.mpc.f_min_stance > cfg.mpc.f_max:
         raise ConfigError(
-            "robot.leg.model=paper has no Jacobian for the implicit step: add plant.integrator=symplectic sim.dt=2e-5"
+            f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = {cfg.mpc.f_max:g} N: lower it"
         )
-    # only the gait controllers run the soft-leg library (rigid has its own gait matrix, schedule its steps)
-    library = cfg.controller.library if cfg.controller.name not in ("rigid", "schedule") else {}
-    for name, style in library.items():
+    for name, schedule in cfg.schedules.items():
+        check_schedule(cfg, name, schedule)
+    return cfg
+
+
+def check_library(cfg: SlotConfig, styles: list[str]) -> None:
+    """The gait library's ``styles`` are played at ``mpc.rate_hz``: each cycle must hold a whole number of ticks."""
+    for name in styles:
+        style = cfg.controller.library[name]
         ticks = cfg.mpc.rate_hz / style.frequency_hz
         if abs(ticks - round(ticks)) > 1e-6:
             raise ConfigError(
@@ -643,47 +613,6 @@ def validate(cfg: SlotConfig) -> SlotConfig:
                 f"cycle must hold a whole number of controller ticks (the sampled waveform otherwise drifts and its "
                 f"speed beats), e.g. {cfg.mpc.rate_hz / max(1, round(ticks)):.6g}"
             )
-    if not cfg.sim.ground and cfg.plant.name != "cosserat":
-        raise ConfigError("sim.ground=false (free space) is a soft-plant setting: add plant=cosserat or drop it")
-    if cfg.plant.name == "rigid" and not cfg.robot.rigid.model:
-        raise ConfigError(
-            f"plant=rigid needs a rigid robot: robot={cfg.robot.name} has no robot.rigid.model "
-            f"(use robot=mini_cheetah or robot=go1)"
-        )
-    if cfg.robot.rigid.model:
-        from .rigid.model import read_spec  # the file must exist and parse before any work starts
-
-        read_spec(cfg.robot.rigid)
-    if cfg.mpc.f_min_stance > cfg.mpc.f_max:
-        raise ConfigError(
-            f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = {cfg.mpc.f_max:g} N: lower it"
-        )
-    for name, schedule in cfg.schedules.items():
-        check_schedule(cfg, name, schedule)
-    if cfg.controller.name == "schedule":
-        if cfg.controller.schedule not in cfg.schedules:
-            raise ConfigError(
-                f"controller.schedule = {cfg.controller.schedule!r} is not a schedule: choose one of "
-                f"{', '.join(sorted(cfg.schedules)) or '(none)'} (conf/schedule/)"
-            )
-        check_schedule_ticks(cfg, cfg.schedules[cfg.controller.schedule], cfg.mpc.rate_hz, "mpc.rate_hz")
-    exp = cfg.experiment
-    if exp is None:
-        from .jobs import run_names
-
-        raise ConfigError(f"no experiment selected: pass experiment=<name>, one of {', '.join(run_names())}")
-    from .jobs import EXPERIMENTS
-
-    registered = EXPERIMENTS.get(exp.name).schema if exp.name in EXPERIMENTS.names() else None
-    if registered is not None and not isinstance(exp, registered):
-        raise ConfigError(
-            f"experiment.name = {exp.name!r} does not match the experiment's settings ({type(exp).__name__}): "
-            f"the name comes with experiment=<name>; choose experiment={exp.name} instead of setting the name"
-        )
-    check = getattr(exp, "check", None)
-    if check is not None:
-        check(cfg)
-    return cfg
 
 
 FILE_NAME = re.compile(r"[A-Za-z0-9_.-]{1,100}")
@@ -742,48 +671,3 @@ def check_scenario(cfg: SlotConfig, name: str, key: str) -> None:
     """``key`` names scenario ``name``: it must be one of ``cfg.scenarios``."""
     if name not in cfg.scenarios:
         raise ConfigError(f"{key} unknown scenario {name!r}: choose from {', '.join(sorted(cfg.scenarios))}")
-
-
-def register_schemas() -> None:
-    """Register the root schema and every experiment's with Hydra's ConfigStore (called by the CLI only)."""
-    from hydra.core.config_store import ConfigStore
-
-    from .jobs import EXPERIMENTS
-
-    cs = ConfigStore.instance()
-    cs.store(name="slot_schema", node=SlotConfig)
-    for name, experiment in EXPERIMENTS.load_all().items():
-        cs.store(group="experiment", name=f"{name}_schema", node=experiment.schema)
-
-
-def config_from_yaml(text: str, experiment_schema: type, root: type = None) -> SlotConfig:
-    """The typed config a run stored in its log (resolved YAML), checked again.
-
-    ``root`` is the root schema (:class:`SlotConfig` unless the run was a hardware run).
-    A log whose config no longer fits the schema (written by another version) is
-    reported as a :class:`ConfigError`.
-    """
-    import yaml
-    from omegaconf import OmegaConf
-    from omegaconf.errors import OmegaConfBaseException
-
-    root = root or SlotConfig
-    base = OmegaConf.structured(root(experiment=experiment_schema()))
-    try:
-        stored = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1}: {getattr(exc, 'problem', '')})" if mark is not None else ""
-        raise ConfigError(
-            f"the config stored in this log is not valid YAML{where}: the log's metadata is damaged; "
-            "rerun the experiment"
-        ) from None
-    if not isinstance(stored, dict):
-        raise ConfigError("the config stored in this log is not a mapping: the log's metadata is damaged; rerun it")
-    try:  # OmegaConf's own YAML reading (its floats: 1e-4 is a number to it, a string to PyYAML)
-        return validate(OmegaConf.to_object(OmegaConf.merge(base, OmegaConf.create(text))))
-    except OmegaConfBaseException as exc:
-        raise ConfigError(
-            f"the config stored in this log does not fit this version's schema "
-            f"({str(exc).splitlines()[0]}): rerun it with this version"
-        ) from None

@@ -12,7 +12,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from slotexp.cli import CONF_DIR, register_schemas
-from slotexp.config import SlotConfig, validate
+from slotexp.composition import validate
+from slotexp.config import SlotConfig
 
 CONF = CONF_DIR
 SLOT = Path(sys.executable).parent / "slot"

@@ -8,13 +8,15 @@
 - ``daqp``: states eliminated, forces that must be zero removed, and the dense
   QP solved by the DAQP active-set solver, warm-started.
 
-Every backend derives from :class:`._base.MpcBackend`, takes the same
-:class:`~slotexp.config.SolverConfig` settings and returns
-:class:`~slotexp.mpc.MpcSolution`. A new backend is one module here, named after
-it, whose class is decorated with ``@BACKENDS.register()`` and declares how exact it is
-(``objective_rtol``, ``violation_tol``, ``first_order``: what the tests hold it to), plus its
-``conf/solver/<name>.yaml``; its module is imported only when it is used.
-"""
+Every backend derives from :class:`._base.MpcBackend`, takes the
+:class:`~slotexp.config.SolverConfig` settings every backend shares (or a subclass: its
+own) and returns :class:`~slotexp.mpc.MpcSolution`. A new backend is one module here,
+named after it, whose class is decorated with ``@BACKENDS.register()`` and declares how
+exact it is (``objective_rtol``, ``violation_tol``, ``first_order``: what the tests hold
+it to), plus its ``conf/solver/<name>.yaml``; its module is imported only when it is
+used. Settings of its own: a subclass of ``SolverConfig`` as the class's ``schema``,
+composed by its YAML (``defaults: [<name>_schema, _self_]``); rules on the whole config:
+``check(cfg)`` (:mod:`slotexp.composition`)."""
 
 from __future__ import annotations
 

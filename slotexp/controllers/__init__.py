@@ -10,10 +10,11 @@ tendon angles. They differ in how the tendon angles are made:
   (its horizontal forces set the gait's velocity, its normal forces the legs' base angles).
 - ``open_loop``: the same library gait at the reference velocity, with no feedback.
 
-A new controller is one module here, named after it, whose class is decorated
-with ``@CONTROLLERS.register()`` and takes ``(cfg, robot)``, plus its
-``conf/controller/<name>.yaml``.
-"""
+A new controller is one module here, named after it, whose class is decorated with
+``@CONTROLLERS.register()`` and takes ``(cfg, robot)``, plus its
+``conf/controller/<name>.yaml``. Settings of its own: a subclass of ``ControllerConfig``
+as the class's ``schema``, composed by its YAML (``defaults: [<name>_schema, _self_]``);
+rules on the whole config: ``check(cfg)`` (:mod:`slotexp.composition`)."""
 
 from __future__ import annotations
 

@@ -13,10 +13,13 @@ bring the robot back to its path after a push.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 import numpy as np
 
 from ..actuation import tendon_angle_deg
-from ..config import SlotConfig
+from ..config import ControllerConfig, SlotConfig, check_library, choice_field
 from ..errors import ConfigError
 from ..gait import contact_plan
 from ..locomotion.library import GaitCommand, GaitLibrary
@@ -38,8 +41,24 @@ def _style_library(cfg: SlotConfig) -> dict:
     return library
 
 
+@dataclass
+class GaitControllerConfig(ControllerConfig):
+    """The gait controllers' settings (``controller=open_loop``; ``gait_mpc`` adds its gains)."""
+
+    # how the two primitives bracketing a direction combine: whole cycles of one or the other, their
+    # schedules mixed, or one primitive with their parameters interpolated (slotexp/locomotion/library.py)
+    blend: str = choice_field("cycles", "cycles", "schedules", "parameters")
+
+
 class GaitController(MpcController):
     """A library gait driven by a velocity and yaw-rate command; subclasses decide how the command moves."""
+
+    schema: ClassVar[type] = GaitControllerConfig
+
+    @staticmethod
+    def check(cfg: SlotConfig) -> None:
+        """The library holds ``gait.style``, and every style's cycle is a whole number of MPC ticks."""
+        check_library(cfg, list(_style_library(cfg)))
 
     @classmethod
     def gait_cycle_steps(cls, cfg: SlotConfig) -> int:

@@ -55,14 +55,16 @@ asks for is used where the legs can give it:
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from ..body import rot_z
-from ..config import SlotConfig
+from ..config import SlotConfig, num_field
 from ..robot import RobotModel
 from . import CONTROLLERS
-from ._gait import GaitController
+from ._gait import GaitController, GaitControllerConfig
 
 MAX_OFFSET_DEG = 30.0  # the normal-force correction stays a correction of the gait
 MAX_TRIM_DEG = 15.0  # the attitude trim's reach, either way
@@ -88,8 +90,27 @@ def without_twist(per_leg: np.ndarray, lever: np.ndarray) -> np.ndarray:
     return per_leg - (per_leg @ twist) * twist
 
 
+@dataclass
+class GaitMpcConfig(GaitControllerConfig):
+    """``controller=gait_mpc``: how much of the MPC's plan reaches the gait (see the module docstring)."""
+
+    name: str = "gait_mpc"
+    # each step adds this fraction of the MPC's planned change of velocity (and yaw rate) to the gait command
+    velocity_gain: float = num_field(0.02, lo=0.0, hi=1.0, unit="")
+    yaw_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
+    # the fraction of the legs' common normal-force offset (height) applied each step; the rest, and the legs'
+    # differences (attitude), are averaged over offset_cycles gait cycles
+    height_at_once: float = num_field(0.25, lo=0.0, hi=1.0, unit="")
+    offset_cycles: int = num_field(2, lo=1, hi=8, unit="cycles")
+    # rate (1/s) of the integral trim that levels the stance: each leg's tendon moves by the corner height the
+    # measured roll and pitch put it off by; 0 (default) turns it off
+    attitude_trim: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s")
+
+
 @CONTROLLERS.register()
 class GaitMpcController(GaitController):
+    schema: ClassVar[type] = GaitMpcConfig
+
     def __init__(self, cfg: SlotConfig, robot: RobotModel) -> None:
         super().__init__(cfg, robot)
         # each leg's normal-force offset, averaged over offset_cycles gait cycles (see the module docstring)

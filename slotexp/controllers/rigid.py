@@ -20,10 +20,13 @@ Each MPC step:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 import numpy as np
 
 from ..body import rot_z
-from ..config import SlotConfig
+from ..config import ControllerConfig, SlotConfig, choice_field
 from ..footstep import footholds
 from ..gait import GaitMatrix, contact_plan
 from ..plants import LegCommand
@@ -49,9 +52,22 @@ def swing_steps_left(contacts: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclass
+class RigidControllerConfig(ControllerConfig):
+    """``controller=rigid``: seeds 001/002's controller's settings (the robot's own are ``robot.rigid``)."""
+
+    name: str = "rigid"
+    # the lever arms of the MPC's B_k. "horizon": each step's footholds (feet standing, swing targets, and the
+    # footholds of steps that land later in the horizon) relative to the CoM predicted for that step (seed 001);
+    # "current": the feet where they stand and the swing targets, relative to the CoM now, one B
+    footholds: str = choice_field("horizon", "horizon", "current")
+
+
 @CONTROLLERS.register()
 class RigidController(MpcController):
     """Gait matrix, footstep planner, MPC and swing parabolas for a rigid quadruped."""
+
+    schema: ClassVar[type] = RigidControllerConfig
 
     @classmethod
     def gait_cycle_steps(cls, cfg: SlotConfig) -> int:

@@ -10,11 +10,13 @@ nothing it plans reaches the tendons.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 
-from ..config import SlotConfig
+from ..config import ControllerConfig, SlotConfig, check_schedule_ticks
+from ..errors import ConfigError
 from ..gait import contact_plan
 from ..locomotion.schedules import schedule_tendon_deg, step_index
 from ..reference import reference
@@ -24,8 +26,28 @@ from . import CONTROLLERS, ControlStep
 from ._base import MpcController
 
 
+@dataclass
+class ScheduleControllerConfig(ControllerConfig):
+    """``controller=schedule``: which of the schedules (``conf/schedule/``, ``schedules.<name>``) it plays."""
+
+    name: str = "schedule"
+    schedule: str = "forward"
+
+
 @CONTROLLERS.register()
 class ScheduleController(MpcController):
+    schema: ClassVar[type] = ScheduleControllerConfig
+
+    @staticmethod
+    def check(cfg: SlotConfig) -> None:
+        """The schedule exists and its steps last whole controller ticks."""
+        if cfg.controller.schedule not in cfg.schedules:
+            raise ConfigError(
+                f"controller.schedule = {cfg.controller.schedule!r} is not a schedule: choose one of "
+                f"{', '.join(sorted(cfg.schedules)) or '(none)'} (conf/schedule/)"
+            )
+        check_schedule_ticks(cfg, cfg.schedules[cfg.controller.schedule], cfg.mpc.rate_hz, "mpc.rate_hz")
+
     @classmethod
     def gait_cycle_steps(cls, cfg: SlotConfig) -> int:
         """The schedule's cycle: its steps, each a whole number of MPC ticks (config.check_schedule_ticks)."""

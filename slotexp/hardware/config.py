@@ -13,7 +13,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..config import ConfigError, SlotConfig, choice_field, num_field, validate, vec_field
+from ..composition import validate
+from ..config import ConfigError, SlotConfig, choice_field, num_field, vec_field
 from .xl430 import DEG_PER_TICK, MAX_TICK, MODEL_NUMBER, WATCHDOG_MAX_UNITS, WATCHDOG_UNIT_MS
 
 __all__ = [
@@ -98,7 +99,7 @@ def _ticks(deg: float) -> float:
 
 
 def validate_hardware(cfg: HardwareSlotConfig) -> HardwareSlotConfig:
-    """Ranges (via :func:`slotexp.config.validate`) and the hardware's cross-field rules."""
+    """Ranges (via :func:`slotexp.composition.validate`) and the hardware's cross-field rules."""
     validate(cfg)
     hw, od = cfg.hardware, cfg.odometry
     servo = cfg.robot.servo

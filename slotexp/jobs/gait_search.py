@@ -28,7 +28,7 @@ import pandas as pd
 import yaml
 
 from ..atomic import write_csv, write_json, write_text
-from ..config import GaitStyleConfig, PrimitiveConfig, SlotConfig, num_field
+from ..config import GaitStyleConfig, PrimitiveConfig, SlotConfig, check_library, num_field
 from ..errors import ConfigError
 from ..locomotion.openloop import GaitMetrics, run_gait
 from ..locomotion.primitives import GaitStyle, Primitive
@@ -72,6 +72,7 @@ class GaitSearchExperiment:
                 f"experiment.style = {self.style!r} is not in the gait library: choose one of "
                 f"{', '.join(cfg.controller.library) or '(none)'} (conf/library/)"
             )
+        check_library(cfg, [self.style])  # its candidates are played at mpc.rate_hz
         if not self.headings and not self.turn:
             raise ConfigError("nothing to search: give experiment.headings or experiment.turn=true")
         names = [p.name for p in cfg.controller.library[self.style].primitives]

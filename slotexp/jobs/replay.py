@@ -21,6 +21,7 @@ import pandas as pd
 
 from ..atomic import write_csv, write_json, write_text
 from ..config import ConfigError, ScheduleConfig, SlotConfig, check_run_length, check_schedule_ticks, num_field
+from ..controllers.schedule import ScheduleControllerConfig
 from ..locomotion.schedules import cycle_s, gait_metrics, with_profile_velocity, wrap_deg
 from ..runlog import find_logs, load_run
 from . import EXPERIMENTS, Experiment
@@ -84,7 +85,7 @@ def schedule_config(cfg: SlotConfig, name: str) -> SlotConfig:
     exp = cfg.experiment
     return replace(
         with_profile_velocity(cfg, exp.profile_velocity_rpm),
-        controller=replace(cfg.controller, name="schedule", schedule=name),
+        controller=ScheduleControllerConfig(library=cfg.controller.library, schedule=name),
         mpc=replace(cfg.mpc, rate_hz=exp.rate_hz),
         gait=replace(cfg.gait, name=name, velocity=[0.0, 0.0], yaw_rate=0.0),
     )

@@ -4,13 +4,16 @@ A plant advances one MPC period under a held command and reports the MPC state
 and where its feet are. What it is commanded with depends on what it is: the
 ideal plant takes ground-reaction forces (:class:`ForceCommand`), the soft-leg
 plant takes tendon angles and makes its own ground forces (:class:`TendonCommand`).
-Each plant names its command type, and :func:`command_for` builds it from the
-controller's outputs, so the closed loop never passes a value a plant ignores.
+Each plant names its command type, and the type builds itself from the
+controller's outputs (``from_outputs``, through :func:`command_for`), so the closed
+loop never passes a value a plant ignores and a new plant with a new command edits
+nothing here.
 
-A new plant is one module here, named after the plant, whose class is decorated
-with ``@PLANTS.register()`` and has ``from_config(cfg, robot, x0)``, plus its
-``conf/plant/<name>.yaml``.
-"""
+A new plant is one module here, named after the plant, whose class is decorated with
+``@PLANTS.register()`` and has ``from_config(cfg, robot, x0)``, plus its
+``conf/plant/<name>.yaml``. Settings of its own: a subclass of ``PlantConfig`` as the
+class's ``schema``, composed by its YAML (``defaults: [<name>_schema, _self_]``); rules
+on the whole config: ``check(cfg)`` (:mod:`slotexp.composition`)."""
 
 from __future__ import annotations
 
@@ -32,12 +35,20 @@ class ForceCommand:
 
     forces: np.ndarray
 
+    @classmethod
+    def from_outputs(cls, forces: np.ndarray, tendon_deg: np.ndarray) -> ForceCommand:
+        return cls(np.asarray(forces, dtype=float))
+
 
 @dataclass(frozen=True)
 class TendonCommand:
     """Servo (tendon) angle commands (4,), degrees, held over the period."""
 
     tendon_deg: np.ndarray
+
+    @classmethod
+    def from_outputs(cls, forces: np.ndarray, tendon_deg: np.ndarray) -> TendonCommand:
+        return cls(np.asarray(tendon_deg, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -75,21 +86,24 @@ class LegCommand:
             np.zeros(3), np.zeros(3),
         )  # fmt: skip
 
+    @classmethod
+    def from_outputs(cls, forces: np.ndarray, tendon_deg: np.ndarray) -> LegCommand:
+        """Every leg in stance (the rigid controller builds its own, swing legs in it: ControlStep.command)."""
+        return cls.standing(forces)
 
-Command = ForceCommand | TendonCommand | LegCommand
+
+class Command(Protocol):
+    """What a plant is commanded with over one period: a frozen dataclass that builds itself from the
+    controller's two outputs (a plant whose command is neither names its own type)."""
+
+    @classmethod
+    def from_outputs(cls, forces: np.ndarray, tendon_deg: np.ndarray) -> Command:
+        """The command from the MPC's ground-reaction forces (4, 3) and the tendon angles (4,), degrees."""
 
 
 def command_for(command_type: type[Command], forces: np.ndarray, tendon_deg: np.ndarray) -> Command:
-    """The command a plant of ``command_type`` takes, from the controller's two outputs.
-
-    A :class:`LegCommand` built here has every leg in stance; the rigid controller
-    builds its own (:attr:`ControlStep.command`) with the swing legs in it.
-    """
-    if command_type is ForceCommand:
-        return ForceCommand(np.asarray(forces, dtype=float))
-    if command_type is LegCommand:
-        return LegCommand.standing(forces)
-    return TendonCommand(np.asarray(tendon_deg, dtype=float))
+    """The command a plant of ``command_type`` takes, from the controller's two outputs."""
+    return command_type.from_outputs(forces, tendon_deg)
 
 
 class Plant(Protocol):

@@ -32,14 +32,17 @@ to the step's order (``tests/test_cosserat.py``).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 import numpy as np
 from numba import prange
 
 from .. import telemetry as T
 from ..actuation import tendon_angle_deg
 from ..body import advance_quaternion, euler_to_quat, horizontal, quat_to_euler, quat_to_rot, solve_spd
-from ..config import SlotConfig, TorsoConfig
-from ..errors import DivergenceError
+from ..config import PlantConfig, SlotConfig, TorsoConfig, choice_field, num_field
+from ..errors import ConfigError, DivergenceError
 from ..jit import njit
 from ..robot import RobotModel
 from ..soft.integrators import divergence_message, implicit_once, jacobian_state, stable_dt, symplectic_once
@@ -776,11 +779,40 @@ def batch_steps(
         )
 
 
+@dataclass
+class CosseratPlantConfig(PlantConfig):
+    """The soft plant's settings (``plant.*`` with ``plant=cosserat``)."""
+
+    name: str = "cosserat"
+    # implicit (linearly implicit Euler, stable at 1e-4 s and above) or symplectic (dt <~ 3e-5 s)
+    integrator: str = choice_field("implicit", "implicit", "symplectic")
+    # implicit step: steps a factored Jacobian may serve (1: a fresh one every step); a change of contact,
+    # friction regime or tendon state refreshes it sooner (slotexp/soft/integrators.py)
+    jacobian_age: int = num_field(1, lo=1, hi=100000, unit="steps")
+
+
 @PLANTS.register()
 class CosseratPlant:
     """Torso + four soft legs behind the :class:`slotexp.plants.Plant` interface."""
 
     command_type = TendonCommand
+    schema: ClassVar[type] = CosseratPlantConfig
+    free_space: ClassVar[bool] = True  # sim.ground=false: the robot in free space (checks of what it conserves)
+
+    @staticmethod
+    def check(cfg: SlotConfig) -> None:
+        """The laws the chosen step has: static friction and the paper's rod need the right integrator."""
+        symplectic = cfg.plant.integrator == "symplectic"
+        if symplectic and cfg.robot.contact.static_friction is not None:
+            raise ConfigError(
+                "robot.contact.static_friction is a law of the implicit step only: drop it, or use "
+                "plant.integrator=implicit"
+            )
+        if cfg.robot.leg.model == "paper" and not symplectic:
+            raise ConfigError(
+                "robot.leg.model=paper has no Jacobian for the implicit step: add plant.integrator=symplectic "
+                "sim.dt=2e-5"
+            )
 
     @classmethod
     def from_config(cls, cfg: SlotConfig, robot: RobotModel, x0: np.ndarray) -> CosseratPlant:

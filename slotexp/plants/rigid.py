@@ -32,6 +32,7 @@ import numpy as np
 from .. import telemetry as T
 from ..body import quat_to_euler
 from ..config import SlotConfig
+from ..errors import ConfigError
 from ..footstep import swing_point
 from ..rigid.model import foot_jacobians, leg_indices, load_model, set_stance
 from ..robot import RobotModel
@@ -43,6 +44,14 @@ class RigidPlant:
     """A rigid 12-joint quadruped in MuJoCo, driven by stance forces and swing-foot PD through J^T."""
 
     command_type = LegCommand
+
+    @staticmethod
+    def check(cfg: SlotConfig) -> None:
+        if not cfg.robot.rigid.model:
+            raise ConfigError(
+                f"plant=rigid needs a rigid robot: robot={cfg.robot.name} has no robot.rigid.model "
+                f"(use robot=mini_cheetah or robot=go1)"
+            )
 
     @classmethod
     def from_config(cls, cfg: SlotConfig, robot: RobotModel, x0: np.ndarray) -> RigidPlant:
