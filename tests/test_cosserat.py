@@ -343,7 +343,7 @@ def test_a_batch_steps_each_robot_exactly_as_it_steps_alone():
     assert not np.allclose(batch.plants[0].state(), batch.plants[1].state())  # two robots, two motions
     twin = batch.plants[1]
     twin.step(TendonCommand(commands[1]), 1 / 30)  # a batched robot still steps alone, on its own row
-    np.testing.assert_array_equal(batch.stacked["torso"][1], twin.torso)
+    np.testing.assert_array_equal(batch.stacked.torso[1], twin.torso)
 
 
 def test_a_torso_on_the_ground_carries_its_weight_there_and_its_friction_stays_in_the_cone():

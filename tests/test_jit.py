@@ -84,9 +84,9 @@ def test_dependencies_are_what_the_kernels_use(tmp_path: Path) -> None:
     pkg = tmp_path / "pkgx"
     assert kernel_dependencies(pkg / "b.py") == [(pkg / "a.py").resolve()]
     assert kernel_dependencies(pkg / "a.py") == []
-    # the project's own: the soft plant's kernel depends on the rigid-body and leg kernels, not on the config
-    deps = {p.name for p in kernel_dependencies(REPO / "slotexp" / "plants" / "cosserat.py")}
-    assert "body.py" in deps and "config.py" not in deps and "cli.py" not in deps
+    # the project's own: the coupled kernel depends on the rigid-body and leg kernels, not on the config
+    deps = {p.name for p in kernel_dependencies(REPO / "slotexp" / "soft" / "coupled.py")}
+    assert {"body.py", "integrators.py", "loads.py"} <= deps and "config.py" not in deps and "cli.py" not in deps
 
 
 def test_a_kernel_compiles_and_caches_in_the_temporary_directory_when_nothing_else_is_writable(

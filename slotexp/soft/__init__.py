@@ -1,4 +1,4 @@
-"""The soft leg: one planar Cosserat rod with its loads, integrators and statics (numba kernels).
+"""The soft legs: planar Cosserat rods with their loads, integrators and statics, and the torso they carry (numba).
 
 - :mod:`.rod`: geometry, elastic energy, forces and banded Hessian, the banded solver,
   and the paper's comparison model;
@@ -7,7 +7,8 @@
 - :mod:`.integrators`: the symplectic and linearly implicit steps, the stability
   limit, and :class:`~.integrators.LegSim`;
 - :mod:`.params`: the packed parameter and output arrays the kernels share;
-- :mod:`.statics`: one leg clamped at its root, driven to equilibrium.
+- :mod:`.statics`: one leg clamped at its root, driven to equilibrium;
+- :mod:`.coupled`: the rigid torso and four legs stepped together, one robot or a batch.
 
-The coupled torso + four legs plant is :mod:`slotexp.plants.cosserat`.
+The Plant around the coupled kernels is :mod:`slotexp.plants.cosserat`.
 """

@@ -20,6 +20,8 @@ advance the rod under its elasticity (:mod:`slotexp.soft.rod`) and loads
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..errors import ConfigError, DivergenceError
@@ -93,6 +95,51 @@ def _finish_step(pos, tension, total_n, total_f, out):
         out[O_DIV] = 1.0
 
 
+class LegState(NamedTuple):
+    """One leg's dynamic state: node positions and velocities (N, 2), element angles and rates (E,)."""
+
+    pos: np.ndarray
+    vel: np.ndarray
+    theta: np.ndarray
+    omega: np.ndarray
+
+
+class StepWork(NamedTuple):
+    """One leg's scratch for a step: node forces (N, 2), element moments (E,), the implicit step's two
+    vectors (3N - 1), and the directors cos/sin theta (E,), which the symplectic step keeps current."""
+
+    force: np.ndarray
+    moment: np.ndarray
+    rhs: np.ndarray
+    vflat: np.ndarray
+    cth: np.ndarray
+    sth: np.ndarray
+
+
+class JacobianState(NamedTuple):
+    """The implicit step's factored Jacobian, kept between steps (:func:`implicit_once`): the banded LU of
+    W, h^2 K, the tendon's W^-1 u and grad L, and the regimes and counters (``J_*``)."""
+
+    lu: np.ndarray
+    kband: np.ndarray
+    jvec: np.ndarray
+    jmeta: np.ndarray
+
+
+def step_work(n_nodes: int, legs: int | None = None) -> StepWork:
+    """Zeroed scratch for one leg's step (or ``legs`` legs', stacked)."""
+    lead = () if legs is None else (legs,)
+    nd = 3 * n_nodes - 1
+    return StepWork(
+        np.zeros(lead + (n_nodes, 2)),
+        np.zeros(lead + (n_nodes - 1,)),
+        np.zeros(lead + (nd,)),
+        np.zeros(lead + (nd,)),
+        np.zeros(lead + (n_nodes - 1,)),
+        np.zeros(lead + (n_nodes - 1,)),
+    )
+
+
 @njit(cache=True)
 def rotate_directors(cth, sth, theta, omega, h):
     """theta += h omega, and turn the directors by the same angle without trig calls.
@@ -116,43 +163,21 @@ def rotate_directors(cth, sth, theta, omega, h):
 
 
 @njit(cache=True)
-def symplectic_once(
-    pos,
-    vel,
-    theta,
-    omega,
-    rest_pos,
-    l0,
-    voronoi,
-    dtheta0,
-    ea,
-    ga,
-    ei,
-    mass,
-    inertia,
-    inv_mass,
-    inv_inertia,
-    par,
-    free_length,
-    root,
-    vlat,
-    h,
-    normal,
-    out,
-    force,
-    moment,
-    cth,
-    sth,
-):
+def symplectic_once(state, leg, inv_mass, inv_inertia, par, free_length, root, vlat, h, normal, out, work):
     """One symplectic (semi-implicit) Euler step with implicit damping, contact and friction.
 
     ``root`` = [s, z, vs, vz, theta, omega] of the root over the step; ``free_length``
     is the tendon's L_free over the step (state, not in ``par``: the servo changes it);
     ``vlat`` (N,) each node's velocity across the leg's plane, which its friction sees
     (the torso's motion there; zeros for a clamped leg).
-    ``cth``/``sth`` must hold the current directors (kept current here). ``normal`` (N,)
-    receives each node's contact normal force; ``force``/``moment`` are work arrays.
+    ``state`` is the leg's :class:`LegState`, ``leg`` its :class:`~slotexp.soft.rod.LegModel`,
+    ``inv_mass``/``inv_inertia`` its reciprocal node masses and element inertias. ``work.cth``/``sth``
+    must hold the current directors (kept current here). ``normal`` (N,) receives each node's contact
+    normal force; the rest of ``work`` is scratch.
     """
+    pos, vel, theta, omega = state
+    rest_pos, _, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia = leg
+    force, moment, _, _, cth, sth = work
     n = pos.shape[0]
     n_el = theta.shape[0]
     c, k_c, d_c, mu, v_eps, ground, _, _ = dissipative_params(par)  # plain Coulomb here (config.validate)
@@ -220,113 +245,34 @@ def symplectic_once(
 
 
 @njit(cache=True)
-def step_symplectic(
-    pos,
-    vel,
-    theta,
-    omega,
-    rest_pos,
-    l0,
-    voronoi,
-    dtheta0,
-    ea,
-    ga,
-    ei,
-    mass,
-    inertia,
-    par,
-    free_length,
-    root,
-    h,
-    n_steps,
-    normal,
-    out,
-):
+def step_symplectic(state, leg, par, free_length, root, h, n_steps, normal, out):
     """``n_steps`` of :func:`symplectic_once` with the root held (nothing slips across the plane)."""
+    pos, _, theta, _ = state
     vlat = np.zeros(pos.shape[0])
-    force = np.zeros(pos.shape)
-    moment = np.zeros(theta.shape[0])
-    cth = np.zeros(theta.shape[0])
-    sth = np.zeros(theta.shape[0])
-    directors(theta, cth, sth)
-    inv_mass = 1.0 / mass
-    inv_inertia = 1.0 / inertia
+    work = StepWork(
+        np.zeros(pos.shape), np.zeros(theta.shape[0]), np.zeros(0), np.zeros(0),
+        np.zeros(theta.shape[0]), np.zeros(theta.shape[0]),
+    )  # fmt: skip
+    directors(theta, work.cth, work.sth)
+    inv_mass = 1.0 / leg.mass
+    inv_inertia = 1.0 / leg.inertia
     for _ in range(n_steps):
-        symplectic_once(
-            pos,
-            vel,
-            theta,
-            omega,
-            rest_pos,
-            l0,
-            voronoi,
-            dtheta0,
-            ea,
-            ga,
-            ei,
-            mass,
-            inertia,
-            inv_mass,
-            inv_inertia,
-            par,
-            free_length,
-            root,
-            vlat,
-            h,
-            normal,
-            out,
-            force,
-            moment,
-            cth,
-            sth,
-        )
+        symplectic_once(state, leg, inv_mass, inv_inertia, par, free_length, root, vlat, h, normal, out, work)
         if out[O_DIV] > 0.0:
             return
-    _set_root(pos, vel, root)
+    _set_root(pos, state.vel, root)
 
 
 @njit(cache=True)
-def implicit_once(
-    pos,
-    vel,
-    theta,
-    omega,
-    rest_pos,
-    l0,
-    voronoi,
-    dtheta0,
-    ea,
-    ga,
-    ei,
-    mass,
-    inertia,
-    par,
-    free_length,
-    root,
-    vlat,
-    h,
-    normal,
-    out,
-    force,
-    moment,
-    lu,
-    kband,
-    jvec,
-    jmeta,
-    max_age,
-    rhs,
-    vflat,
-    cth,
-    sth,
-):
+def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age):
     """One linearly implicit Euler step, W (M - h^2 K - h C) dv = h F(x, v) - h^2 K v, v' = v + dv.
 
-    Arguments as :func:`symplectic_once` (``cth``/``sth`` are set from theta here: numba
-    vectorises that loop, which costs less than turning them). K and C are the Jacobians
-    of every load (elasticity, tendon, contact, friction, damping); the tendon adds a
+    Arguments as :func:`symplectic_once` (``work.cth``/``sth`` are set from theta here: numba
+    vectorises that loop, which costs less than turning them); ``jac`` is the :class:`JacobianState`.
+    K and C are the Jacobians of every load (elasticity, tendon, contact, friction, damping); the tendon adds a
     rank-one term to K, handled by Sherman-Morrison around the banded solve. The root
-    node's rows are rows of the identity (its velocity is prescribed). ``rhs`` and
-    ``vflat`` are work arrays (3N - 1).
+    node's rows are rows of the identity (its velocity is prescribed). ``work.rhs`` and
+    ``work.vflat`` are scratch (3N - 1).
 
     The factored W and h^2 K are the leg's own state: ``lu``, ``kband``; ``jvec`` = the
     tendon's W^-1 u and grad L; ``jmeta`` = each node's contact regime, then the entries
@@ -338,6 +284,10 @@ def implicit_once(
     consistent, since F is always current; the structural changes that would make it
     unstable refresh them at once).
     """
+    pos, vel, theta, omega = state
+    rest_pos, _, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia = leg
+    force, moment, rhs, vflat, cth, sth = work
+    lu, kband, jvec, jmeta = jac
     n = pos.shape[0]
     n_el = theta.shape[0]
     nd = 3 * n - 1
@@ -509,91 +459,32 @@ def implicit_once(
     _finish_step(pos, tension, total_n, total_f, out)
 
 
-def jacobian_state(n_nodes: int, legs: int | None = None) -> tuple[np.ndarray, ...]:
-    """A leg's (or ``legs`` legs') implicit-step Jacobian state for :func:`implicit_once`, empty: the
-    first step factors. (lu, kband, jvec, jmeta)."""
+def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:
+    """A leg's (or ``legs`` legs', stacked) implicit-step Jacobian state for :func:`implicit_once`, empty:
+    the first step factors."""
     nd = 3 * n_nodes - 1
     lead = () if legs is None else (legs,)
     meta = np.zeros(lead + (n_nodes + J_COUNT + 1,))
     meta[..., n_nodes + J_AGE] = np.inf  # refresh at the first step
-    return np.zeros(lead + (nd, 9)), np.zeros(lead + (nd, 9)), np.zeros(lead + (2, nd)), meta
+    return JacobianState(np.zeros(lead + (nd, 9)), np.zeros(lead + (nd, 9)), np.zeros(lead + (2, nd)), meta)
 
 
 @njit(cache=True)
-def step_implicit(
-    pos,
-    vel,
-    theta,
-    omega,
-    rest_pos,
-    l0,
-    voronoi,
-    dtheta0,
-    ea,
-    ga,
-    ei,
-    mass,
-    inertia,
-    par,
-    free_length,
-    root,
-    h,
-    n_steps,
-    normal,
-    out,
-    lu,
-    kband,
-    jvec,
-    jmeta,
-    max_age,
-):
-    """``n_steps`` of :func:`implicit_once` with the root held (the Jacobian state is the caller's; nothing
-    slips across the plane)."""
+def step_implicit(state, leg, par, free_length, root, h, n_steps, normal, out, jac, max_age):
+    """``n_steps`` of :func:`implicit_once` with the root held (the Jacobian state ``jac`` is the caller's;
+    nothing slips across the plane)."""
+    pos, _, theta, _ = state
     nd = 3 * pos.shape[0] - 1
     vlat = np.zeros(pos.shape[0])
-    force = np.zeros(pos.shape)
-    moment = np.zeros(theta.shape[0])
-    rhs = np.zeros(nd)
-    vflat = np.zeros(nd)
-    cth = np.zeros(theta.shape[0])
-    sth = np.zeros(theta.shape[0])
+    work = StepWork(
+        np.zeros(pos.shape), np.zeros(theta.shape[0]), np.zeros(nd), np.zeros(nd),
+        np.zeros(theta.shape[0]), np.zeros(theta.shape[0]),
+    )  # fmt: skip
     for _ in range(n_steps):
-        implicit_once(
-            pos,
-            vel,
-            theta,
-            omega,
-            rest_pos,
-            l0,
-            voronoi,
-            dtheta0,
-            ea,
-            ga,
-            ei,
-            mass,
-            inertia,
-            par,
-            free_length,
-            root,
-            vlat,
-            h,
-            normal,
-            out,
-            force,
-            moment,
-            lu,
-            kband,
-            jvec,
-            jmeta,
-            max_age,
-            rhs,
-            vflat,
-            cth,
-            sth,
-        )
+        implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age)
         if out[O_DIV] > 0.0:
             return
-    _set_root(pos, vel, root)
+    _set_root(pos, state.vel, root)
 
 
 def divergence_message(
@@ -698,37 +589,17 @@ class LegSim:
     @property
     def factorisations(self) -> int:
         """How many Jacobians the implicit step has factored for this leg."""
-        return int(self.jacobian[3][self.model.n_nodes + J_COUNT])
+        return int(self.jacobian.jmeta[self.model.n_nodes + J_COUNT])
 
     def step(self, h: float, n_steps: int = 1, integrator: str = "symplectic") -> None:
         m = self.model
         implicit = integrator == "implicit"
         if implicit and self.par[P_PAPER] > 0.5:
             raise ConfigError("the paper's leg model has no Jacobian: use the symplectic integrator with it")
-        args = (
-            self.pos,
-            self.vel,
-            self.theta,
-            self.omega,
-            m.rest_pos,
-            m.l0,
-            m.voronoi,
-            m.dtheta0,
-            m.ea,
-            m.ga,
-            m.ei,
-            m.mass,
-            m.inertia,
-            self.par,
-            float(self.free_length),
-            self.root,
-            h,
-            n_steps,
-            self.normal,
-            self.out,
-        )
+        state = LegState(self.pos, self.vel, self.theta, self.omega)
+        args = (state, m, self.par, float(self.free_length), self.root, h, n_steps, self.normal, self.out)
         if implicit:
-            step_implicit(*args, *self.jacobian, self.jacobian_age)
+            step_implicit(*args, self.jacobian, self.jacobian_age)
         else:
             step_symplectic(*args)
         self.time += h * n_steps

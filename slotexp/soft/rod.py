@@ -27,7 +27,7 @@ Every kernel reads an element's Delta and its components a, b through
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -39,9 +39,11 @@ POISSON = 0.45  # TPU is nearly incompressible
 SHEAR_COEFF = 5.0 / 6.0  # rectangular section
 
 
-@dataclass(frozen=True)
-class LegModel:
-    """Discretised leg: rest geometry, stiffness, lumped inertia (all SI)."""
+class LegModel(NamedTuple):
+    """Discretised leg: rest geometry, stiffness, lumped inertia (all SI).
+
+    A named tuple of arrays, so the numba kernels take it whole (its properties are Python's only).
+    """
 
     rest_pos: np.ndarray  # (N, 2)
     rest_theta: np.ndarray  # (E,)
