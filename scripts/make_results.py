@@ -284,6 +284,15 @@ RUNS = {
         "experiment.max_evals=96",
         "robot.torso.mass=0.5",
     ],
+    # ... with a cable pair on each leg (robot.tendon.antagonist: the horn also curls a leg up)
+    "identify_robot_height40_pair": [
+        "experiment=identify",
+        "plant=cosserat",
+        FITTED_WIDE.replace("lo: 50.0, hi: 140.0", "lo: 50.0, hi: 180.0"),
+        "experiment.height_mm=40",
+        "experiment.max_evals=96",
+        "robot.tendon.antagonist=true",
+    ],
     "identify_synthetic": [
         "experiment=identify",
         "plant=cosserat",

@@ -152,6 +152,9 @@ class TendonConfig:
     routed_fraction: float = num_field(2.0 / 3.0, lo=0.0, lo_open=True, hi=1.0, unit="")
     stiffness: float = num_field(2.0e4, lo=0.0, lo_open=True, unit="N/m")
     slack: float = num_field(0.0, lo=0.0, unit="m")
+    # a second cable at the same offset above the centreline on the same pulley (a cable loop): the servo lets
+    # it out as it winds the first in, and below its zero it pulls the leg up (slotexp.soft.loads.tendon_cable)
+    antagonist: bool = False
 
 
 @dataclass

@@ -269,3 +269,46 @@ def test_the_sideways_tip_stiffness_is_the_cantilevers_and_the_rigid_leg_has_non
     assert k == pytest.approx(30.8, abs=0.3)  # the paper's leg: 31 N/m, about 4x its in-plane tip stiffness
     assert lateral_stiffness(LegConfig(out_of_plane="bending", youngs_modulus=2e7)) == pytest.approx(2 * k)
     assert lateral_stiffness(LegConfig()) == 0.0  # rigid across the plane, the default
+
+
+@pytest.mark.parametrize("integrator", ["implicit", "symplectic"])
+def test_a_cable_pair_curls_a_straight_leg_up_as_far_as_it_curls_it_down(integrator):
+    # robot.tendon.antagonist: the second cable runs the same offset above the centreline, so on a straight
+    # leg without gravity or ground letting the servo turn back by theta mirrors winding it on by theta
+    from slotexp.soft.loads import pair_free_length, tendon_length
+    from slotexp.soft.params import O_TS, P_TPAIR
+
+    m = uniform()
+    par = make_par(damping=50.0, tendon_k=2e4, tendon_offset=0.01, tendon_max=140.0, n_anchor=20)
+    free0 = tendon_length(m.rest_pos, m.rest_theta, m.rest_theta[0], par)
+    h = 2e-4 if integrator == "implicit" else 0.5 * stable_dt(m)
+    tips, sides = {}, {}
+    for pair in (False, True):
+        for wound in (0.004, -0.004):  # m of cable in (the lower one) or out
+            p = par.copy()
+            if pair:
+                p[P_TPAIR] = pair_free_length(m, p, free0)
+            sim = LegSim(m, p, free0)
+            sim.free_length = free0 - wound
+            sim.step(h, int(round(1.0 / h)), integrator)
+            tips[pair, wound] = sim.tip - m.rest_pos[-1]
+            sides[pair, wound] = sim.out[O_TS]
+    assert tips[True, 0.004][1] < -0.02  # curled well down
+    np.testing.assert_allclose(tips[True, -0.004], tips[True, 0.004] * [1.0, -1.0], atol=1e-9)
+    # wound in, the lower cable pulls as it does alone (the upper one may catch the first swing back)
+    np.testing.assert_allclose(tips[False, 0.004], tips[True, 0.004], atol=1e-9)
+    np.testing.assert_allclose(tips[False, -0.004], 0.0, atol=1e-12)  # one cable: letting it out does nothing
+    assert (sides[True, 0.004], sides[True, -0.004], sides[False, -0.004]) == (1.0, -1.0, 0.0)
+
+
+def test_the_servo_turns_against_a_cable_on_either_side_at_the_same_speed():
+    # the pair's upper cable loads the servo the other way: the speed-torque line is mirrored
+    from slotexp.soft.servo import servo_step
+
+    args = (1e-3, 0.005)
+    for load in (0.0, 0.7, 1.2):
+        up = servo_step(0.0, 1.0, *args, load, 1.4, 6.0, 0.0)
+        down = servo_step(0.0, -1.0, *args, -load, 1.4, 6.0, 0.0)
+        assert down == -up
+        assert up == pytest.approx(6.0 * (1.0 - load / 1.4) * 1e-3)  # at the line's speed for that torque
+        assert servo_step(0.0, -1.0, *args, load, 1.4, 6.0, 0.0) == pytest.approx(-6.0e-3)  # the load helps

@@ -33,8 +33,8 @@ from ..soft.coupled import (
     velocity_from_momentum,
 )
 from ..soft.integrators import divergence_message, stable_dt
-from ..soft.loads import rest_free_length
-from ..soft.params import O_F, O_FL, O_N, O_T, OUT, leg_params
+from ..soft.loads import pair_free_length, rest_free_length
+from ..soft.params import O_F, O_FL, O_N, O_T, OUT, P_TPAIR, leg_params
 from ..soft.rod import LegModel, build_leg, lateral_stiffness
 from ..soft.servo import RPM_TO_RAD_S
 from . import PLANTS, TendonCommand
@@ -140,6 +140,8 @@ class CosseratPlant:
         self.par = np.tile(leg_params(cfg, ground=cfg.sim.ground), (4, 1))  # one row per leg, no tip load
         # free cable with the servo at zero; the servo angle then sets each leg's free length
         self.free0 = np.full(4, rest_free_length(m, self.par[0], cfg.robot.tendon.slack))
+        if cfg.robot.tendon.antagonist:
+            self.par[:, P_TPAIR] = pair_free_length(m, self.par[0], self.free0[0])
         self.servo = np.zeros(4)  # servo (tendon) angle, rad
         self.servo_cmd = np.zeros(4)
         sc = cfg.robot.servo

@@ -46,7 +46,7 @@ from ..body import advance_quaternion, quat_to_rot, solve_spd
 from ..jit import njit
 from .integrators import JacobianState, LegState, StepWork, implicit_once, jacobian_state, symplectic_once
 from .loads import coulomb_friction, friction_slope
-from .params import O_DIV, O_FL, O_FX, O_FZ, O_M, O_T, P_MUS, P_VS
+from .params import O_DIV, O_FL, O_FX, O_FZ, O_M, O_T, O_TS, P_MUS, P_VS
 from .servo import servo_step
 
 __all__ = ["TorsoModel", "Settings", "Robot", "Work", "new_work", "coupled_steps", "batch_steps"]
@@ -458,8 +458,11 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
             for k in range(1, n_nodes):
                 vlat[k] = lat_v + (pos[i, k, 1] - p2) * turn + (w0 + pos[i, k, 0]) * ww2
             # servo: first-order lag towards the command, at most as fast as its load allows
+            cable_torque = out[i, O_T] * pulley  # the cable's torque on the servo, against winding it in
+            if out[i, O_TS] < 0.0:
+                cable_torque = -cable_torque  # the pair's upper cable resists the other way
             servo[i] = servo_step(
-                servo[i], servo_cmd[i], h, servo_par[0], out[i, O_T] * pulley, servo_par[1], servo_par[2], servo_par[3]
+                servo[i], servo_cmd[i], h, servo_par[0], cable_torque, servo_par[1], servo_par[2], servo_par[3]
             )
             free_length = free0[i] - pulley * servo[i]  # the cable the servo leaves out
             if implicit:

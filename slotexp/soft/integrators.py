@@ -46,6 +46,7 @@ from .params import (
     O_M,
     O_N,
     O_T,
+    O_TS,
     OUT,
     P_G,
     P_GROUND,
@@ -56,7 +57,7 @@ from .params import (
     P_TK,
     P_TM,
     P_TMAX,
-    P_TOFF,
+    P_TPAIR,
 )
 from .rod import (
     LegModel,
@@ -84,10 +85,11 @@ def _set_root(pos, vel, root):
 
 
 @njit(cache=True)
-def _finish_step(pos, tension, total_n, total_f, out):
-    """Report the step's tension and contact totals; flag a blown-up state (non-finite, or the
-    tip 100 m away) so the caller can stop with the step and the stability limit named."""
+def _finish_step(pos, tension, offset, total_n, total_f, out):
+    """Report the step's tension (and which cable pulls) and contact totals; flag a blown-up state
+    (non-finite, or the tip 100 m away) so the caller can stop with the step and the stability limit named."""
     out[O_T] = tension
+    out[O_TS] = 0.0 if tension <= 0.0 else (1.0 if offset > 0.0 else -1.0)
     out[O_N] = total_n
     out[O_F] = total_f
     tip = pos[pos.shape[0] - 1]
@@ -182,7 +184,7 @@ def symplectic_once(state, leg, inv_mass, inv_inertia, par, free_length, root, v
     n_el = theta.shape[0]
     c, k_c, d_c, mu, v_eps, ground, _, _ = dissipative_params(par)  # plain Coulomb here (config.validate)
     _set_root(pos, vel, root)
-    tension, m_root = conservative_forces(
+    tension, m_root, offset = conservative_forces(
         pos,
         theta,
         root[4],
@@ -241,7 +243,7 @@ def symplectic_once(state, leg, inv_mass, inv_inertia, par, free_length, root, v
     out[O_FZ] += c * rz
     out[O_M] += c * rm
     rotate_directors(cth, sth, theta, omega, h)
-    _finish_step(pos, tension, total_n, total_f, out)
+    _finish_step(pos, tension, offset, total_n, total_f, out)
 
 
 @njit(cache=True)
@@ -295,7 +297,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     mu_top = max(mu, mu_s)
     h2 = h * h
     _set_root(pos, vel, root)
-    tension, m_root = conservative_forces(
+    tension, m_root, offset = conservative_forces(
         pos,
         theta,
         root[4],
@@ -318,6 +320,8 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     root_reaction(force, m_root, mass, par, out)
     taut = tension > 0.0 and tension < par[P_TMAX]
     cable = 0.0 if tension <= 0.0 else (1.0 if taut else 2.0)  # slack, taut, at the servo's stall
+    if offset < 0.0:
+        cable = -cable  # the pair's upper cable
     i_cable, i_age, i_gz, i_step = n + J_CABLE, n + J_AGE, n + J_GZ, n + J_STEP
     fresh = jmeta[i_age] >= max_age or jmeta[i_step] != h or jmeta[i_cable] != cable
     # the velocity-dependent forces at the start of the step: damping towards the root frame's rigid motion, contact
@@ -355,7 +359,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, kband, h2)
         g[:] = 0.0
         if tension > 0.0:
-            tendon_jacobian(pos, cth, sth, tension, par, h2, kband, g)
+            tendon_jacobian(pos, cth, sth, tension, offset, par, h2, kband, g)
         for i in range(1, n):
             regime = 0
             if ground and pos[i, 1] < 0.0:
@@ -401,7 +405,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         for d in range(nd):
             gv += g[d] * vflat[d]
         # the tendon's rank-one stiffness, and its tension's change as the root angle turns over the step
-        coef = h2 * par[P_TK] * (par[P_TOFF] * root[5] - gv)
+        coef = h2 * par[P_TK] * (offset * root[5] - gv)
         for d in range(2, nd):
             rhs[d] += coef * g[d]
     rhs[0] = 0.0
@@ -445,18 +449,18 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
             gx += g[d] * x[d]
         # the tension's change over the step, as the nodes move and the root angle turns (the same change the
         # nodes felt through the rank-one term): the root's share of it
-        stretch_rate = gx - par[P_TOFF] * root[5]
+        stretch_rate = gx - offset * root[5]
         out[O_FX] -= h * par[P_TK] * g[0] * stretch_rate
         out[O_FZ] -= h * par[P_TK] * g[1] * stretch_rate
         tension_end = tension + par[P_TK] * h * stretch_rate
     k0 = ei[0] / voronoi[0]
     out[O_M] = k0 * (theta[0] - root[4] - h * root[5])
     if tension > 0.0:
-        out[O_M] += tension_end * par[P_TOFF]
+        out[O_M] += tension_end * offset
     out[O_FX] += damp_x
     out[O_FZ] += damp_z
     out[O_M] += damp_m
-    _finish_step(pos, tension, total_n, total_f, out)
+    _finish_step(pos, tension, offset, total_n, total_f, out)
 
 
 def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:
@@ -625,6 +629,9 @@ class LegSim:
         grav = self.par[P_G] * np.sum(m.mass * self.pos[:, 1])
         stretch = max(0.0, tendon_length(self.pos, self.theta, self.root[4], self.par) - self.free_length)
         tendon = 0.5 * self.par[P_TK] * stretch**2
+        if self.par[P_TPAIR] > 0.0:  # the pair's upper cable, at the offset above the centreline
+            upper = tendon_length(self.pos, self.theta, self.root[4], self.par, -1.0)
+            tendon += 0.5 * self.par[P_TK] * max(0.0, upper - (self.par[P_TPAIR] - self.free_length)) ** 2
         work = -(
             self.par[P_TFX] * self.pos[-1, 0] + self.par[P_TFZ] * self.pos[-1, 1] + self.par[P_TM] * self.theta[-1]
         )

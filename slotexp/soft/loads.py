@@ -20,7 +20,11 @@
   lengths), its tension T = min(k_t max(0, L - L_free), T_max) acts as -T grad L:
   an axial compression along the routed part and a distributed bending moment that
   curls the leg down. ``L_free`` is the cable length the servo leaves out: state,
-  passed to the kernels as ``free_length``, not a packed parameter;
+  passed to the kernels as ``free_length``, not a packed parameter. With a pair
+  (``robot.tendon.antagonist``, ``par[P_TPAIR]`` > 0) a second cable runs at the same
+  offset above the centreline on the same pulley, so the servo lets it out as it
+  winds the first in: its free length is ``P_TPAIR - free_length``, and when the lower
+  cable is slack it pulls the leg up (:func:`tendon_cable`);
 - an optional static tip force and moment (for the leg experiment).
 
 The force and moment the leg exerts on its root (node 0, which belongs to the
@@ -52,6 +56,7 @@ from .params import (
     P_TM,
     P_TMAX,
     P_TOFF,
+    P_TPAIR,
     P_VEPS,
     P_VS,
 )
@@ -59,22 +64,47 @@ from .rod import LegModel, directors, elastic_forces_cs, element_kinematics, pap
 
 
 @njit(cache=True)
-def tendon_length_cs(pos, theta, cth, sth, theta_root, par) -> float:
+def routed_geometry(pos, theta, cth, sth, theta_root, par):
+    """The routed part's axial length sum a_e and its turn theta_{na-1} - theta_0: a cable at offset d
+    from the centreline is sum a_e + d turn long (d > 0 below it, < 0 above)."""
     na = int(par[P_NA])
     length = 0.0
     for e in range(na):
         _, _, a, _ = element_kinematics(pos, e, cth[e], sth[e])
         length += a
-    return length + par[P_TOFF] * (theta[na - 1] - theta_root)
+    return length, theta[na - 1] - theta_root
 
 
 @njit(cache=True)
-def tendon_length(pos, theta, theta_root, par) -> float:
-    """Length of the routed cable (see the module docstring)."""
+def tendon_cable(pos, theta, cth, sth, theta_root, par, free_length):
+    """(tension, offset) of the cable that pulls: the one below the centreline (offset ``par[P_TOFF]``);
+    with a pair, the one above (offset ``-par[P_TOFF]``, free length ``P_TPAIR - free_length``) when the
+    lower one is slack. The two cannot both be taut but through the routed part's axial strain."""
+    length, turn = routed_geometry(pos, theta, cth, sth, theta_root, par)
+    offset = par[P_TOFF]
+    tension = tendon_tension(length + offset * turn, free_length, par)
+    if tension <= 0.0 and par[P_TPAIR] > 0.0:
+        upper = tendon_tension(length - offset * turn, par[P_TPAIR] - free_length, par)
+        if upper > 0.0:
+            return upper, -offset
+    return tension, offset
+
+
+def pair_free_length(model: LegModel, par: np.ndarray, free0: float) -> float:
+    """``par[P_TPAIR]`` for a pair on a leg whose lower cable's free length at servo zero is ``free0``: the
+    upper cable is shorter by 2 offset x the rest shape's turn over the routed part, with the same slack."""
+    na = int(par[P_NA])
+    return 2.0 * free0 - 2.0 * par[P_TOFF] * (model.rest_theta[na - 1] - model.rest_theta[0])
+
+
+@njit(cache=True)
+def tendon_length(pos, theta, theta_root, par, side=1.0) -> float:
+    """Length of the routed cable (see the module docstring); ``side`` -1: the pair's upper cable."""
     cth = np.empty(theta.shape[0])
     sth = np.empty(theta.shape[0])
     directors(theta, cth, sth)
-    return tendon_length_cs(pos, theta, cth, sth, theta_root, par)
+    length, turn = routed_geometry(pos, theta, cth, sth, theta_root, par)
+    return length + side * par[P_TOFF] * turn
 
 
 def rest_free_length(model: LegModel, par: np.ndarray, slack: float) -> float:
@@ -92,8 +122,8 @@ def tendon_tension(length, free_length, par) -> float:
 
 
 @njit(cache=True)
-def add_tendon(pos, cth, sth, tension, par, force, moment):
-    """-T grad L into force/moment."""
+def add_tendon(pos, cth, sth, tension, offset, par, force, moment):
+    """-T grad L into force/moment, for the cable at ``offset`` (:func:`tendon_cable`)."""
     na = int(par[P_NA])
     for e in range(na):
         c = cth[e]
@@ -104,11 +134,11 @@ def add_tendon(pos, cth, sth, tension, par, force, moment):
         force[e + 1, 1] -= tension * s
         _, _, _, b = element_kinematics(pos, e, c, s)
         moment[e] -= tension * b
-    moment[na - 1] -= tension * par[P_TOFF]
+    moment[na - 1] -= tension * offset
 
 
 @njit(cache=True)
-def tendon_jacobian(pos, cth, sth, tension, par, scale, band, grad_l):
+def tendon_jacobian(pos, cth, sth, tension, offset, par, scale, band, grad_l):
     """Add grad L into ``grad_l`` and ``scale`` * T * hess L into ``band`` (the implicit step's layout).
 
     The tendon's stiffness is T hess L + k_t grad L grad L^T: the first part is banded,
@@ -132,7 +162,7 @@ def tendon_jacobian(pos, cth, sth, tension, par, scale, band, grad_l):
                 band[node, 4 + th - node] += scale * tension * sg * d1
                 band[th, 4 + node - th] += scale * tension * sg * d1
         band[th, 4] += scale * tension * (-a)
-    grad_l[3 * (na - 1) + 2] += par[P_TOFF]
+    grad_l[3 * (na - 1) + 2] += offset
 
 
 @njit(cache=True)
@@ -159,7 +189,7 @@ def conservative_forces(
     """Elastic + tendon + gravity + tip load (no contact, no damping); ``free_length`` is the tendon's L_free.
 
     With ``refresh`` the directors ``cth``/``sth`` are recomputed from theta; otherwise
-    the caller keeps them current. Returns (tension, moment on the root).
+    the caller keeps them current. Returns (tension, moment on the root, the pulling cable's offset).
     """
     force[:] = 0.0
     moment[:] = 0.0
@@ -171,17 +201,17 @@ def conservative_forces(
         )
     else:
         m_root = elastic_forces_cs(pos, theta, cth, sth, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment)
-    tension = tendon_tension(tendon_length_cs(pos, theta, cth, sth, theta_root, par), free_length, par)
+    tension, offset = tendon_cable(pos, theta, cth, sth, theta_root, par, free_length)
     if tension > 0.0:
-        add_tendon(pos, cth, sth, tension, par, force, moment)
-        m_root += tension * par[P_TOFF]  # the cable leaves the root at the offset
+        add_tendon(pos, cth, sth, tension, offset, par, force, moment)
+        m_root += tension * offset  # the cable leaves the root at the offset
     n = pos.shape[0]
     for i in range(n):
         force[i, 1] -= mass[i] * par[P_G]
     force[n - 1, 0] += par[P_TFX]
     force[n - 1, 1] += par[P_TFZ]
     moment[theta.shape[0] - 1] += par[P_TM]
-    return tension, m_root
+    return tension, m_root, offset
 
 
 @njit(cache=True)

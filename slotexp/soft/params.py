@@ -44,12 +44,16 @@ PAR = (
     "k_restore",
     "mu_static",
     "v_stribeck",
+    "tendon_pair",
 )
 (P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFX, P_TFZ, P_TM, P_NA, P_PAPER, P_KR) = range(16)
 P_MUS, P_VS = 16, 17  # the feet's friction at rest and the speed over which it falls to mu (robot.contact)
+# robot.tendon.antagonist: the two cables' free lengths summed (constant as the servo turns); 0: one cable
+P_TPAIR = 18
 # friction: along the leg's plane (the leg's own step); friction_lateral: across it (the coupled plant's torso step)
-OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged", "friction_lateral")
-O_FX, O_FZ, O_M, O_T, O_N, O_F, O_DIV, O_FL = range(8)
+# tendon_side: which cable pulls (1: below the centreline, -1: above it, robot.tendon.antagonist; 0: neither)
+OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged", "friction_lateral", "tendon_side")
+O_FX, O_FZ, O_M, O_T, O_N, O_F, O_DIV, O_FL, O_TS = range(9)
 
 
 def make_par(**kw: float) -> np.ndarray:

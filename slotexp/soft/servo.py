@@ -8,6 +8,8 @@ can turn under its load:
 
     winding (ds > 0, against the tendon's pull):  w_max = w0 max(0, 1 - T r / tau_stall)
     unwinding (the load helps):                    w_max = w0
+    (the load torque is signed: with a pair of cables, robot.tendon.antagonist, the upper
+    one resists turning the other way)
     and w_max <= the Profile Velocity the bus sets (when it sets one).
 
 That is the DC motor's linear speed-torque line from the no-load speed w0 to the
@@ -41,10 +43,11 @@ def servo_step(
     no_load_speed: float,
     profile_speed: float,
 ) -> float:
-    """The servo angle (rad) after one step of ``h`` s (speeds in rad/s; ``profile_speed`` 0: no profile)."""
+    """The servo angle (rad) after one step of ``h`` s (speeds in rad/s; ``profile_speed`` 0: no profile;
+    ``load_torque`` > 0 resists turning up, < 0 turning down)."""
     delta = (command - angle) * (h / tau) / (1.0 + h / tau)
-    if delta > 0.0:
-        w_max = no_load_speed * max(0.0, 1.0 - load_torque / stall_torque)
+    if delta * load_torque > 0.0:  # turning against the load
+        w_max = no_load_speed * max(0.0, 1.0 - abs(load_torque) / stall_torque)
     else:
         w_max = no_load_speed
     if profile_speed > 0.0 and profile_speed < w_max:

@@ -6,8 +6,8 @@ import numpy as np
 
 from ..config import SlotConfig
 from .integrators import LegSim
-from .loads import rest_free_length
-from .params import O_N, O_T, leg_params
+from .loads import pair_free_length, rest_free_length
+from .params import O_N, O_T, P_TPAIR, leg_params
 from .rod import build_leg
 
 
@@ -17,7 +17,10 @@ def clamped_leg(cfg: SlotConfig, root_height: float | None = None) -> LegSim:
     load = cfg.leg_load
     model = build_leg(leg)
     par = leg_params(cfg, ground=load.ground, tip_force=load.tip_force, tip_moment=load.tip_moment)
-    sim = LegSim(model, par, rest_free_length(model, par, cfg.robot.tendon.slack))
+    free0 = rest_free_length(model, par, cfg.robot.tendon.slack)
+    if cfg.robot.tendon.antagonist:
+        par[P_TPAIR] = pair_free_length(model, par, free0)
+    sim = LegSim(model, par, free0)
     height = load.root_height if root_height is None else root_height
     if height is not None:
         shift = height - model.rest_pos[0, 1]
