@@ -25,6 +25,7 @@ from omegaconf import OmegaConf
 from ..atomic import write_text
 from ..backends import BACKENDS, make_mpc
 from ..backends._base import single_threaded_blas
+from ..composition import schema_of
 from ..config import SlotConfig, SolverConfig
 from ..configtree import CONF_DIR
 from ..controllers.paper import PaperController
@@ -32,6 +33,8 @@ from ..figures.style import new_figure, save
 from ..plants import ForceCommand, nominal_state
 from ..plants.ideal import IdealPlant
 from ..robot import build_robot
+from ..scenarios import advance, perturbations
+from ..simulation import scenario_seed
 from . import BenchRow, register
 
 SCENARIO = "combined"
@@ -48,17 +51,15 @@ def record_problems(cfg: SlotConfig, scenario: str = SCENARIO, duration: float =
     sc = cfg.scenarios[scenario]
     plant = IdealPlant(robot, nominal_state(robot) + np.asarray(sc.offset.as_array()), cfg.sim.gravity, cfg.sim.dt)
     ctrl = PaperController(cfg, robot)
-    impulses = sorted(sc.impulses, key=lambda imp: imp.t)
+    acting = perturbations(sc)  # pushes at their own times within a period, as a run applies them
+    rng = np.random.default_rng(scenario_seed(cfg.sim.seed, sc.name))
     problems = []
     for k in range(int(round(duration * cfg.mpc.rate_hz))):
         t = k * ctrl.period
         x, feet = plant.state(), plant.feet()
         step = ctrl.step(t, x, feet)
         problems.append((x, step.x_ref, feet - x[3:6], step.plan))
-        while impulses and impulses[0].t < t + ctrl.period:
-            imp = impulses.pop(0)
-            plant.apply_impulse(np.asarray(imp.linear), np.asarray(imp.angular))
-        plant.step(ForceCommand(step.forces), ctrl.period)
+        advance(plant, ForceCommand(step.forces), t, ctrl.period, acting, rng)
     return problems
 
 
@@ -67,7 +68,8 @@ def solver_settings(name: str, cfg: SlotConfig) -> SolverConfig:
     if name == cfg.solver.name:
         return cfg.solver
     raw = OmegaConf.to_container(OmegaConf.load(CONF_SOLVER / f"{name}.yaml"))
-    return dataclasses.replace(SolverConfig(), **raw)
+    raw.pop("defaults", None)  # a backend with settings of its own composes its schema
+    return dataclasses.replace(schema_of("solver", name)(), **raw)
 
 
 def time_backend(name: str, cfg: SlotConfig, problems: list[tuple]) -> dict:
