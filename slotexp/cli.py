@@ -329,7 +329,7 @@ def _check_keys(parsed: list, groups: tuple[str, ...], root: type | None) -> Non
     """Every ``key=value`` and ``+key=value`` names a field of the schema (Hydra's own hint, "use
     +key=value", would add a key that nothing reads). A plant's, controller's or backend's setting is
     looked up in the variant the overrides choose, or, where they choose none, in any of its kind."""
-    from .composition import VARIANT_KINDS, declared_schemas
+    from .composition import VARIANT_KINDS
     from .config import SlotConfig
     from .jobs import EXPERIMENTS
 
@@ -348,33 +348,43 @@ def _check_keys(parsed: list, groups: tuple[str, ...], root: type | None) -> Non
             continue
         head = key.split(".")[0]
         if head in VARIANT_KINDS and "." in key:
-            problem = _variant_key_problem(key, root, sections, head, chosen.get(head), declared_schemas(head))
+            problem = _variant_key_problem(key, root, sections, head, chosen.get(head))
         else:
             problem = unknown_key(key, root, sections)
         if problem:
             fail(problem)
 
 
-def _variant_key_problem(
-    key: str, root: type, sections: dict, kind: str, chosen: str | None, schemas: dict[str, type]
-) -> str | None:
-    """``key`` in a variant's section: a field of the chosen variant (or of some variant, none chosen)."""
-    problems = {name: unknown_key(key, root, {**sections, kind: schema}) for name, schema in schemas.items()}
-    having = sorted(name for name, problem in problems.items() if problem is None and name != "")
-    if chosen is not None:  # a variant without its own schema has the base's settings
-        problems.setdefault(chosen, problems[""])
-        if problems[chosen] is None:
-            return None
+def _variants_with(key: str, kind: str, root: type, sections: dict) -> list[str]:
+    """The variants of ``kind`` whose own settings (a schema of their own) include the dotted ``key``."""
+    from .composition import declared_schemas
+
+    schemas = declared_schemas(kind)
+    return sorted(n for n, s in schemas.items() if n and unknown_key(key, root, {**sections, kind: s}) is None)
+
+
+def _setting_of(key: str, kind: str, having: list[str], this_run: str) -> str:
+    """One line: ``key`` belongs to the variants ``having``, not to ``this_run``'s."""
+    return (
+        f"{key} is a setting of {' or '.join(f'{kind}={n}' for n in having)}, {this_run}: choose {kind}={having[0]}, "
+        "or drop the setting"
+    )
+
+
+def _variant_key_problem(key: str, root: type, sections: dict, kind: str, chosen: str | None) -> str | None:
+    """``key`` in a variant's section: a field of the chosen variant (or, none chosen, of some variant)."""
+    from .composition import VARIANT_KINDS, declared_schemas
+
+    having = _variants_with(key, kind, root, sections)
+    if chosen is None:
         if having:
-            return (
-                f"{key} is a setting of {' or '.join(f'{kind}={n}' for n in having)}, not of {kind}={chosen}: choose "
-                f"{kind}={having[0]}, or drop the setting"
-            )
-        return problems[chosen]
-    if any(problem is None for problem in problems.values()):
-        return None
-    suggestions = [p for p in problems.values() if "did you mean" in p]
-    return (suggestions or [problems[""]])[0]
+            return None  # composing decides, and _variant_setting_message words its refusal
+        problems = [unknown_key(key, root, {**sections, kind: s}) for s in declared_schemas(kind).values()]
+        return next((p for p in problems if "did you mean" in p), problems[0])  # the base's first
+    problem = unknown_key(key, root, {**sections, kind: declared_schemas(kind).get(chosen, VARIANT_KINDS[kind])})
+    if problem is None or not having:
+        return problem
+    return _setting_of(key, kind, having, f"not of {kind}={chosen}")
 
 
 def _variant_setting_message(exc: BaseException) -> str | None:
@@ -382,24 +392,15 @@ def _variant_setting_message(exc: BaseException) -> str | None:
     (the variant comes from a default or another group, so the overrides alone could not tell)."""
     import re
 
-    from .composition import VARIANT_KINDS, declared_schemas
+    from .composition import VARIANT_KINDS
     from .config import SlotConfig
 
     found = re.search(r"Could not override '([a-z_]+)\.([^']+)'", str(exc))
     if found is None or found.group(1) not in VARIANT_KINDS:
         return None
     kind, key = found.groups()
-    having = sorted(
-        name
-        for name, schema in declared_schemas(kind).items()
-        if name and unknown_key(f"{kind}.{key}", SlotConfig, {kind: schema}) is None
-    )
-    if not having:
-        return None
-    return (
-        f"{kind}.{key} is a setting of {' or '.join(f'{kind}={n}' for n in having)}, which this run does not use: add "
-        f"{kind}={having[0]}, or drop the setting"
-    )
+    having = _variants_with(f"{kind}.{key}", kind, SlotConfig, {})
+    return _setting_of(f"{kind}.{key}", kind, having, "which this run does not use") if having else None
 
 
 def _compose_message(exc: BaseException) -> str:
