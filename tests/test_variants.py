@@ -258,7 +258,10 @@ def test_a_backend_with_settings_is_one_module_and_its_yaml(tmp_path, monkeypatc
     "overrides, words",
     [
         # the plant comes from the default: the message names the plant that has the setting
-        (["plant.integrator=symplectic"], ["plant.integrator is a setting of plant=cosserat, which this run does not use", "choose plant=cosserat"]),
+        (
+            ["plant.integrator=symplectic"],
+            ["plant.integrator is a setting of plant=cosserat, which this run does not use", "choose plant=cosserat"],
+        ),
         # the controller is chosen: the message says it lacks the setting
         (
             ["plant=cosserat", "controller=paper", "controller.blend=cycles"],
