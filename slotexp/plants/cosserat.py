@@ -30,6 +30,8 @@ from ..soft.coupled import (
     batch_steps,
     coupled_steps,
     new_work,
+    row,
+    stacked,
     velocity_from_momentum,
 )
 from ..soft.integrators import divergence_message, stable_dt
@@ -429,12 +431,12 @@ class CosseratBatch:
         if any(p.cfg.plant != first.cfg.plant for p in plants):
             raise ValueError("every plant in a batch must use the same integrator and Jacobian age")
         self.plants = plants
-        self.stacked = Robot(*(np.stack([getattr(p, name) for p in plants]) for name in _OWN))
-        self.work = Work(*(np.stack([p._work[k] for p in plants]) for k in range(len(Work._fields))))
+        self.stacked = stacked([Robot(*(getattr(p, name) for name in _OWN)) for p in plants])
+        self.work = stacked([p._work for p in plants])
         for b, p in enumerate(plants):
-            for name, stacked in zip(_OWN, self.stacked):
-                setattr(p, name, stacked[b])
-            p._work = Work(*(w[b] for w in self.work))
+            for name, array in zip(_OWN, row(self.stacked, b)):
+                setattr(p, name, array)
+            p._work = row(self.work, b)
         self.f_ext = np.zeros((len(plants), 3))
         self.done = np.zeros(len(plants), dtype=np.int64)
 

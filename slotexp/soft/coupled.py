@@ -49,7 +49,7 @@ from .loads import coulomb_friction, friction_slope
 from .params import O_DIV, O_FL, O_FX, O_FZ, O_M, O_T, O_TS, P_MUS, P_VS
 from .servo import servo_step
 
-__all__ = ["TorsoModel", "Settings", "Robot", "Work", "new_work", "coupled_steps", "batch_steps"]
+__all__ = ["TorsoModel", "Settings", "Robot", "Work", "new_work", "stacked", "row", "coupled_steps", "batch_steps"]
 
 
 class TorsoModel(NamedTuple):
@@ -112,20 +112,10 @@ class Robot(NamedTuple):
     lateral: np.ndarray
 
 
-class Work(NamedTuple):
-    """One robot's scratch (force, moment, rhs, vflat: shared by its legs in turn) and the solver state it
-    keeps between steps: each leg's directors (4, E) and implicit-step Jacobian (4, ...)."""
-
-    force: np.ndarray
-    moment: np.ndarray
-    rhs: np.ndarray
-    vflat: np.ndarray
-    cth: np.ndarray
-    sth: np.ndarray
-    lu: np.ndarray
-    kband: np.ndarray
-    jvec: np.ndarray
-    jmeta: np.ndarray
+# One robot's scratch and the solver state it keeps between steps, flat (a parallel loop takes named tuples
+# one level deep only): the legs' shared StepWork (force, moment, rhs, vflat, used by each leg in turn) with
+# each leg's directors (4, E), then each leg's implicit-step JacobianState (4, ...).
+Work = NamedTuple("Work", [(name, np.ndarray) for name in StepWork._fields + JacobianState._fields])
 
 
 def new_work(theta: np.ndarray) -> Work:
@@ -133,10 +123,24 @@ def new_work(theta: np.ndarray) -> Work:
     empty Jacobian (the first step factors)."""
     n = theta.shape[1] + 1
     nd = 3 * n - 1
-    return Work(
-        np.zeros((n, 2)), np.zeros(n - 1), np.zeros(nd), np.zeros(nd), np.cos(theta), np.sin(theta),
-        *jacobian_state(n, 4),
-    )  # fmt: skip
+    scratch = StepWork(np.zeros((n, 2)), np.zeros(n - 1), np.zeros(nd), np.zeros(nd), np.cos(theta), np.sin(theta))
+    return Work(*scratch, *jacobian_state(n, 4))
+
+
+def stacked(items: list) -> tuple:
+    """Named tuples of arrays (nested ones too), one per robot, as one of the same kind with each array
+    stacked along a new first axis (a batch's)."""
+    first = items[0]
+    if isinstance(first, tuple):
+        return type(first)(*(stacked([item[k] for item in items]) for k in range(len(first))))
+    return np.stack(items)
+
+
+def row(batch: tuple, b: int) -> tuple:
+    """Robot ``b``'s views of a batch's :func:`stacked` named tuple."""
+    if isinstance(batch, tuple):
+        return type(batch)(*(row(part, b) for part in batch))
+    return batch[b]
 
 
 @njit(cache=True)
@@ -465,35 +469,14 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
                 servo[i], servo_cmd[i], h, servo_par[0], cable_torque, servo_par[1], servo_par[2], servo_par[3]
             )
             free_length = free0[i] - pulley * servo[i]  # the cable the servo leaves out
+            state = LegState(pos[i], vel[i], theta[i], omega[i])
+            scratch = StepWork(force, moment, rhs, vflat, cth[i], sth[i])
             if implicit:
-                implicit_once(
-                    LegState(pos[i], vel[i], theta[i], omega[i]),
-                    leg,
-                    par[i],
-                    free_length,
-                    root,
-                    vlat,
-                    h,
-                    normal[i],
-                    out[i],
-                    StepWork(force, moment, rhs, vflat, cth[i], sth[i]),
-                    JacobianState(lu[i], kband[i], jvec[i], jmeta[i]),
-                    max_age,
-                )
+                jac = JacobianState(lu[i], kband[i], jvec[i], jmeta[i])
+                implicit_once(state, leg, par[i], free_length, root, vlat, h, normal[i], out[i], scratch, jac, max_age)
             else:
                 symplectic_once(
-                    LegState(pos[i], vel[i], theta[i], omega[i]),
-                    leg,
-                    inv_mass,
-                    inv_inertia,
-                    par[i],
-                    free_length,
-                    root,
-                    vlat,
-                    h,
-                    normal[i],
-                    out[i],
-                    StepWork(force, moment, rhs, vflat, cth[i], sth[i]),
+                    state, leg, inv_mass, inv_inertia, par[i], free_length, root, vlat, h, normal[i], out[i], scratch
                 )
             if out[i, O_DIV] > 0.0:
                 return step

@@ -164,7 +164,14 @@ def rotate_directors(cth, sth, theta, omega, h):
             sth[e] = np.sin(theta[e])
 
 
-@njit(cache=True, inline="always")  # taking its state grouped cost the 1 us leg step 11 % as a call; inlined, 0
+def _inline_in_the_leg_loop(expr, caller_ir, callee_ir) -> bool:
+    """numba's inline cost model for :func:`symplectic_once`: inlined into :func:`step_symplectic` (as a call,
+    its grouped arguments cost the 1 us leg step 11 %), a call from the coupled kernel (inlined there, the
+    kernel grew and the robot's implicit step slowed 2-3 %)."""
+    return caller_ir.func_id.func_name == "step_symplectic"
+
+
+@njit(cache=True, inline=_inline_in_the_leg_loop)
 def symplectic_once(state, leg, inv_mass, inv_inertia, par, free_length, root, vlat, h, normal, out, work):
     """One symplectic (semi-implicit) Euler step with implicit damping, contact and friction.
 
