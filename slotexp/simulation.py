@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import ScenarioConfig, SlotConfig
-from .controllers import ControlStep, make_controller
+from .controllers import make_controller
 from .errors import RunFailedError
-from .plants import Command, Plant, command_for, make_plant, nominal_state
+from .plants import make_plant, nominal_state
 from .reference import desired_path, reference
 from .robot import build_robot
 from .scenarios import advance, perturbations
@@ -98,7 +98,7 @@ def run_closed_loop(
                 log_step(sink, record, scene)
                 for topic, message in plant.telemetry().items():
                     sink.write(topic, t, message)
-            advance(plant, _plant_command(plant, step), t, period, acting, rng)
+            advance(plant, step.command, t, period, acting, rng)
             done = k + 1
             if progress is not None:
                 progress(done, n_steps)
@@ -114,11 +114,3 @@ def run_closed_loop(
         sim_time_s=done * period,
         wall_time_s=time.perf_counter() - started,
     )
-
-
-def _plant_command(plant: Plant, step: ControlStep) -> Command:
-    """The command ``plant`` takes for ``step``: the controller's own when it built one of the plant's kind
-    (the rigid controller's LegCommand), else the plant's kind from the step's forces and tendon angles."""
-    if isinstance(step.command, plant.command_type):
-        return step.command
-    return command_for(plant.command_type, step.forces, step.tendon_deg)

@@ -26,28 +26,31 @@ import numpy as np
 from ..config import SlotConfig
 from ..gait import ContactPlan
 from ..mpc import MpcSolution
+from ..plants import Command
 from ..registry import Registry
 from ..robot import RobotModel
 
 
 @dataclass
 class ControlStep:
+    """One MPC step's result: the controller's two outputs (logged whatever the plant), the one ``command``
+    the plant or robot is given (of the kind it takes: ``Controller.command_type``), and the MPC's record."""
+
     forces: np.ndarray  # (4, 3) applied ground-reaction forces, world frame
     tendon_deg: np.ndarray  # (4,) commanded tendon angles
+    command: Command  # what the plant steps with: built from the two outputs, or the rigid controller's own
     solution: MpcSolution
     plan: ContactPlan
     x_ref: np.ndarray  # (H, 12)
     fallback: bool
     violations: dict[str, float]  # per constraint group, of the applied input
     telemetry: dict = field(default_factory=dict)  # the controller's own state, logged as /controller
-    # the plant command, when the controller builds one itself (the rigid controller's LegCommand);
-    # None: the simulation builds it from forces and tendon_deg (slotexp.plants.command_for)
-    command: object | None = None
 
 
 class Controller(Protocol):
     period: float
     infeasible_steps: int
+    command_type: type[Command]  # the kind of command its steps carry
 
     def step(self, t: float, x: np.ndarray, feet: np.ndarray) -> ControlStep:
         """One MPC step at time ``t`` from measured state ``x`` (12,) and world foot positions ``feet`` (4, 3)."""
@@ -56,9 +59,13 @@ class Controller(Protocol):
 CONTROLLERS: Registry[type] = Registry(__name__, "controller")
 
 
-def make_controller(cfg: SlotConfig, robot: RobotModel) -> Controller:
-    """The controller ``cfg.controller.name`` selects."""
-    return CONTROLLERS.get(cfg.controller.name)(cfg, robot)
+def make_controller(cfg: SlotConfig, robot: RobotModel, command_type: type[Command] | None = None) -> Controller:
+    """The controller ``cfg.controller.name`` selects, commanding ``command_type`` (default: what the plant
+    ``cfg.plant`` takes; ``slot hardware`` passes the servos' :class:`~slotexp.plants.TendonCommand`)."""
+    controller = CONTROLLERS.get(cfg.controller.name)(cfg, robot)
+    if command_type is not None:
+        controller.command_type = command_type
+    return controller
 
 
 __all__ = ["ControlStep", "Controller", "CONTROLLERS", "make_controller"]

@@ -15,6 +15,7 @@ from ..backends import make_mpc
 from ..config import SlotConfig
 from ..gait import ContactPlan
 from ..mpc import MpcSolution, constraint_violations
+from ..plants import PLANTS, Command
 from ..robot import RobotModel
 
 
@@ -30,6 +31,8 @@ class MpcController:
         self.last_feasible = np.tile([0.0, 0.0, min(self.weight / 4.0, cfg.mpc.f_max)], (4, 1))
         self.infeasible_steps = 0
         self.steps = 0
+        # the kind of command its steps carry: what the configured plant takes (make_controller may set another)
+        self.command_type: type[Command] = PLANTS.get(cfg.plant.name).command_type
 
     @classmethod
     def gait_cycle_steps(cls, cfg: SlotConfig) -> int | None:

@@ -110,9 +110,11 @@ class GaitController(MpcController):
             )[1],
             "gait_deg": gait,
         }
+        tendon = np.clip(tendon, 0.0, self.top)
         return ControlStep(
             forces=forces,
-            tendon_deg=np.clip(tendon, 0.0, self.top),
+            tendon_deg=tendon,
+            command=self.command_type.from_outputs(forces, tendon),
             solution=solution,
             plan=plan,
             x_ref=x_ref,

@@ -44,6 +44,7 @@ class PaperController(MpcController):
         return ControlStep(
             forces=forces,
             tendon_deg=tendon,
+            command=self.command_type.from_outputs(forces, tendon),
             solution=solution,
             plan=plan,
             x_ref=x_ref,

@@ -186,14 +186,16 @@ class RigidController(MpcController):
             swing_timing=cfg.robot.rigid.swing_timing,
             swing_feedforward=cfg.robot.rigid.swing_feedforward,
         )
+        if self.command_type is not LegCommand:  # a plant without legs takes the stance forces alone
+            command = self.command_type.from_outputs(forces, np.zeros(4))
         return ControlStep(
             forces=forces,
             tendon_deg=np.zeros(4),
+            command=command,
             solution=solution,
             plan=plan,
             x_ref=x_ref,
             fallback=not solution.success,
             violations=violations,
             telemetry={"foothold": self.targets.copy(), "swing": (~stance).astype(float)},
-            command=command,
         )

@@ -70,9 +70,11 @@ class ScheduleController(MpcController):
         forces, solution, violations = self.solve(x, x_ref, feet - x[3:6], plan)
         k = step_index(self.schedule, t)
         self.steps += 1
+        tendon = self.tendon[k].copy()
         return ControlStep(
             forces=forces,
-            tendon_deg=self.tendon[k].copy(),
+            tendon_deg=tendon,
+            command=self.command_type.from_outputs(forces, tendon),
             solution=solution,
             plan=plan,
             x_ref=x_ref,

@@ -127,7 +127,7 @@ def run_loop(
         x = sample.state
         step = controller.step(t, x, nominal_feet(robot, sample.position, sample.quaternion))
         t_solve = clock()
-        goal, clamped = smap.to_ticks(step.tendon_deg)
+        goal, clamped = smap.to_ticks(step.command.tendon_deg)
         retries = readings.retries
         if not dry_run:
             retries += bus.write_goals(goal)
@@ -146,7 +146,7 @@ def run_loop(
         for k in np.flatnonzero(clamped & ~warned):
             warned[k] = True
             notify(
-                f"note: {names[k]} command clamped to the servo limits (tendon {step.tendon_deg[k]:.2f} deg "
+                f"note: {names[k]} command clamped to the servo limits (tendon {step.command.tendon_deg[k]:.2f} deg "
                 f"-> {smap.to_tendon_deg(goal)[k]:.2f} deg); counted in /servos and the summary"
             )
         if p_des is None:

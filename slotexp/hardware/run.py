@@ -22,6 +22,7 @@ from .. import __version__
 from ..controllers import Controller, make_controller
 from ..errors import BusError, SafetyStop
 from ..live import open_view
+from ..plants import TendonCommand
 from ..record import Recorder
 from ..robot import RobotModel, build_robot
 from ..signals import StopFlag
@@ -132,7 +133,7 @@ def run_hardware(
                 )
             for note in notes + bus.configure(cfg.dry_run):
                 notify(f"note: {note}")
-            controller = make_controller(cfg, robot)
+            controller = make_controller(cfg, robot, TendonCommand)  # the servos take tendon angles
             warm_up(controller, robot, first)
             log_path.parent.mkdir(parents=True, exist_ok=True)
             meta = {"config": {"yaml": resolved_yaml}, "run": _run_metadata(cfg, commit)}
