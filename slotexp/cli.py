@@ -380,6 +380,8 @@ def _variant_key_problem(key: str, root: type, sections: dict, kind: str, chosen
         if having:
             return None  # composing decides, and _variant_setting_message words its refusal
         problems = [unknown_key(key, root, {**sections, kind: s}) for s in declared_schemas(kind).values()]
+        if None in problems:  # a setting every variant has (the base's)
+            return None
         return next((p for p in problems if "did you mean" in p), problems[0])  # the base's first
     problem = unknown_key(key, root, {**sections, kind: declared_schemas(kind).get(chosen, VARIANT_KINDS[kind])})
     if problem is None or not having:

@@ -298,3 +298,15 @@ def test_a_stored_config_reads_back_with_each_variants_own_settings(overrides):
     back = config_from_yaml(text, EXPERIMENTS.get(cfg.experiment.name).schema)
     assert back == cfg
     assert type(back.plant) is type(cfg.plant) and type(back.controller) is type(cfg.controller)
+
+
+def test_a_setting_every_variant_has_passes_the_override_check_with_no_variant_chosen():
+    """``solver.time_limit_s`` is the base's: no variant is named, and none need be."""
+    from slotexp.cli import _variant_key_problem
+    from slotexp.config import SlotConfig
+
+    assert _variant_key_problem("solver.time_limit_s", SlotConfig, {}, "solver", None) is None
+    assert _variant_key_problem("plant.name", SlotConfig, {}, "plant", None) is None
+    assert "did you mean solver.time_limit_s" in _variant_key_problem(
+        "solver.time_limt_s", SlotConfig, {}, "solver", None
+    )
