@@ -355,12 +355,17 @@ def _check_keys(parsed: list, groups: tuple[str, ...], root: type | None) -> Non
             fail(problem)
 
 
-def _variants_with(key: str, kind: str, root: type, sections: dict) -> list[str]:
-    """The variants of ``kind`` whose own settings (a schema of their own) include the dotted ``key``."""
+def _key_problems(key: str, kind: str, root: type, sections: dict) -> dict[str, str | None]:
+    """What :func:`unknown_key` says of ``key`` under each schema of ``kind``: the base's (under ``""``) and
+    each variant's own (by name; :func:`slotexp.composition.declared_schemas`, read once)."""
     from .composition import declared_schemas
 
-    schemas = declared_schemas(kind)
-    return sorted(n for n, s in schemas.items() if n and unknown_key(key, root, {**sections, kind: s}) is None)
+    return {name: unknown_key(key, root, {**sections, kind: s}) for name, s in declared_schemas(kind).items()}
+
+
+def _having(problems: dict[str, str | None]) -> list[str]:
+    """The variants whose own settings include the key :func:`_key_problems` was asked about."""
+    return sorted(name for name, problem in problems.items() if name and problem is None)
 
 
 def _setting_of(key: str, kind: str, having: list[str], this_run: str) -> str:
@@ -373,17 +378,13 @@ def _setting_of(key: str, kind: str, having: list[str], this_run: str) -> str:
 
 def _variant_key_problem(key: str, root: type, sections: dict, kind: str, chosen: str | None) -> str | None:
     """``key`` in a variant's section: a field of the chosen variant (or, none chosen, of some variant)."""
-    from .composition import VARIANT_KINDS, declared_schemas
-
-    having = _variants_with(key, kind, root, sections)
+    problems = _key_problems(key, kind, root, sections)
+    having = _having(problems)
     if chosen is None:
-        if having:
-            return None  # composing decides, and _variant_setting_message words its refusal
-        problems = [unknown_key(key, root, {**sections, kind: s}) for s in declared_schemas(kind).values()]
-        if None in problems:  # a setting every variant has (the base's)
-            return None
-        return next((p for p in problems if "did you mean" in p), problems[0])  # the base's first
-    problem = unknown_key(key, root, {**sections, kind: declared_schemas(kind).get(chosen, VARIANT_KINDS[kind])})
+        if having or problems[""] is None:  # some variant's, to be decided by composing; or every variant's
+            return None  # (_variant_setting_message words a refusal)
+        return next((p for p in problems.values() if "did you mean" in p), problems[""])
+    problem = problems.get(chosen, problems[""])  # a variant without its own schema has the base's settings
     if problem is None or not having:
         return problem
     return _setting_of(key, kind, having, f"not of {kind}={chosen}")
@@ -401,7 +402,7 @@ def _variant_setting_message(exc: BaseException) -> str | None:
     if found is None or found.group(1) not in VARIANT_KINDS:
         return None
     kind, key = found.groups()
-    having = _variants_with(f"{kind}.{key}", kind, SlotConfig, {})
+    having = _having(_key_problems(f"{kind}.{key}", kind, SlotConfig, {}))
     return _setting_of(f"{kind}.{key}", kind, having, "which this run does not use") if having else None
 
 

@@ -78,16 +78,15 @@ def validate(cfg: SlotConfig) -> SlotConfig:
     """Every check of a composed config: the root's fields, each variant's name, schema and ``check``,
     the robot's model file, and the experiment's; raise :class:`ConfigError` (one line)."""
     check_fields(cfg)
-    for kind in VARIANT_KINDS:
+    classes = {kind: variant(kind, getattr(cfg, kind).name) for kind in VARIANT_KINDS}
+    for kind, cls in classes.items():
         section = getattr(cfg, kind)
-        cls = variant(kind, section.name)
-        schema = getattr(cls, "schema", VARIANT_KINDS[kind])
-        if type(section) is not schema:
+        if type(section) is not getattr(cls, "schema", VARIANT_KINDS[kind]):
             raise ConfigError(
                 f"{kind}.name = {section.name!r} does not match the {kind}'s settings ({type(section).__name__}): "
                 f"the name comes with {kind}=<name>; choose {kind}={section.name} instead of setting the name"
             )
-    if not cfg.sim.ground and not getattr(variant("plant", cfg.plant.name), "free_space", False):
+    if not cfg.sim.ground and not getattr(classes["plant"], "free_space", False):
         raise ConfigError(
             f"sim.ground=false (free space) is not a setting plant={cfg.plant.name} has: use plant=cosserat or drop it"
         )
@@ -95,8 +94,8 @@ def validate(cfg: SlotConfig) -> SlotConfig:
         from .rigid.model import read_spec  # the file must exist and parse before any work starts
 
         read_spec(cfg.robot.rigid)
-    for kind in VARIANT_KINDS:
-        check = getattr(variant(kind, getattr(cfg, kind).name), "check", None)
+    for cls in classes.values():
+        check = getattr(cls, "check", None)
         if check is not None:
             check(cfg)
     _check_experiment(cfg)
