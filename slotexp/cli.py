@@ -590,24 +590,39 @@ def _hardware_task(cfg) -> None:
     from .hardware.config import load_hardware_config
     from .hardware.run import run_hardware
     from .jobs._logged import git_commit
+    from .signals import STOP_SIGNALS
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     with _one_line_failures(out_dir):
         hw_cfg = load_hardware_config(cfg)
         result = run_hardware(hw_cfg, out_dir, OmegaConf.to_yaml(cfg), lambda m: typer.echo(m, err=True), git_commit())
-    if result.outcome is not None and result.outcome.steps >= 2:
-        from .hardware.report import report
+    try:
+        if result.outcome is not None and result.outcome.steps >= 2:
+            from .hardware.report import report
 
-        try:
-            report(out_dir, list(hw_cfg.gait.velocity), list(hw_cfg.robot.leg.names))
-        except Exception as exc:  # the run's outcome matters more than its figures
-            typer.echo(f"warning: metrics/figures not written: {exc}", err=True)
-    if result.message:
-        prefix = "error: " if result.exit_code not in (0, 130, 143) else ""
-        typer.echo(f"{prefix}{result.message}", err=True)
-    _say(str(out_dir), out_dir=out_dir)
+            try:
+                report(out_dir, list(hw_cfg.gait.velocity), list(hw_cfg.robot.leg.names))
+            except Exception as exc:  # the run's outcome matters more than its figures
+                typer.echo(f"warning: metrics/figures not written: {exc}", err=True)
+        if result.message:
+            stopped = result.exit_code == 0 or result.exit_code - 128 in {int(s) for s in STOP_SIGNALS}
+            typer.echo(f"{'' if stopped else 'error: '}{result.message}", err=True)
+        _say(str(out_dir), out_dir=out_dir)
+    except OSError:  # the terminal is gone (SIGHUP): the servos are off and the log closed; nobody to tell
+        _silence_std_streams()
     if result.exit_code:
         raise SystemExit(result.exit_code)
+
+
+def _silence_std_streams() -> None:
+    """Point stdout and stderr at /dev/null, so the interpreter's last flush to a closed terminal neither
+    raises nor turns the exit status into 120."""
+    null = os.open(os.devnull, os.O_WRONLY)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            os.dup2(null, stream.fileno())
+        except (OSError, ValueError):
+            pass
 
 
 @app.command(
@@ -798,7 +813,8 @@ _received: list[int] = []  # stop signals this process has taken (a launcher may
 
 
 def _terminate(signum, frame) -> None:
-    """SIGTERM (timeout, SLURM, systemd) as Ctrl-C: unwind, close what is open, exit 143."""
+    """SIGTERM (timeout, SLURM, systemd) and SIGHUP (a closed terminal) as Ctrl-C: unwind, close what is open,
+    exit 128 + the signal's number."""
     from .errors import Interrupted
 
     _received.append(signum)
@@ -809,12 +825,13 @@ def _stopped_by(exc: BaseException) -> tuple[int, str]:
     """The signal behind a KeyboardInterrupt (its own, or the last one this process took, or SIGINT) and
     the word a message uses for it."""
     signum = getattr(exc, "signum", None) or (_received[-1] if _received else signal.SIGINT)
-    return signum, "terminated" if signum == signal.SIGTERM else "interrupted"
+    return signum, {signal.SIGTERM: "terminated", signal.SIGHUP: "hung up"}.get(signum, "interrupted")
 
 
 def main() -> None:
-    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
-        signal.signal(signal.SIGTERM, _terminate)
+    for signum in (signal.SIGTERM, signal.SIGHUP):  # SIGINT already raises KeyboardInterrupt
+        if signal.getsignal(signum) is signal.SIG_DFL:
+            signal.signal(signum, _terminate)
     try:
         app()
     except ModuleNotFoundError as exc:  # outside a Hydra job (slot bench rigid, ...)

@@ -1,10 +1,13 @@
 """Stop signals, in one place: which ones, how a run takes them, and how a sweep's parent passes them on.
 
-- :func:`interrupts_between_steps`: a simulated run takes Ctrl-C (SIGINT) and SIGTERM
+- :data:`STOP_SIGNALS`: Ctrl-C (SIGINT), SIGTERM (a timeout, SLURM, systemd) and SIGHUP (a closed
+  terminal, a dropped SSH connection) end every command the same way.
+- :func:`interrupts_between_steps`: a simulated run takes a stop signal
   between two MPC steps, never inside a compiled kernel, and raises
   :class:`~slotexp.errors.Interrupted` there, so its log closes.
 - :class:`StopFlag`: the hardware loop's version: the first signal asks it to stop at
-  the next cycle (torque off, log closed), a second raises at once.
+  the next cycle (torque off, log closed), a second raises at once, unless the shutdown
+  (torque off) has begun: nothing interrupts that.
 - ``slot run -m``: the joblib launcher ends its workers with SIGKILL when the parent
   stops, which would cut each job's MCAP log wherever it was. The parent
   (:func:`become_sweep_parent`) passes the signal on to its child processes instead
@@ -30,19 +33,20 @@ import psutil
 
 from .errors import Interrupted
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # Ctrl-C; timeout, SLURM, systemd
+# Ctrl-C; timeout, SLURM, systemd; a closed terminal or a dropped SSH connection
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 PARENT_ENV = "SLOT_SWEEP_PARENT"  # the sweep's parent PID, inherited by its job processes
 GRACE_S = 20.0  # longest wait for the jobs to close their logs; then the launcher kills what is left
 
 
 @contextmanager
 def interrupts_between_steps() -> Iterator[Callable[[], None]]:
-    """Take Ctrl-C (SIGINT) and SIGTERM between MPC steps, never inside a compiled kernel.
+    """Take the stop signals (SIGINT, SIGTERM, SIGHUP) between MPC steps, never inside a compiled kernel.
 
     Python raises KeyboardInterrupt wherever the interpreter happens to be; inside a
     numba kernel's call back into Python it surfaces as a ``SystemError`` instead,
-    which no handler expects, and SIGTERM's default ends the process with the log
-    unfinished. While this is active, either signal only sets a flag, and the
+    which no handler expects, and SIGTERM's and SIGHUP's defaults end the process with the
+    log unfinished. While this is active, a stop signal only sets a flag, and the
     function it yields raises :class:`Interrupted` at the next step boundary (at
     most one MPC step later), so the caller's ``with`` blocks close their logs.
     Outside the main thread it does nothing; a signal that is ignored stays ignored.
@@ -69,17 +73,25 @@ def interrupts_between_steps() -> Iterator[Callable[[], None]]:
 
 
 class StopFlag:
-    """Ctrl-C and SIGTERM as a request to stop the hardware loop at the next cycle boundary.
+    """A stop signal as a request to stop the hardware loop at the next cycle boundary.
 
     Why not let SIGINT raise KeyboardInterrupt anywhere: an exception in the middle of
     a dynamixel-sdk transaction can leave the port half-used; stopping between cycles
     keeps the shutdown (torque off on every servo, log closed) on a known path. A
     second signal raises KeyboardInterrupt at once, for a loop stuck in a long solve;
-    the caller's ``finally`` still turns the torque off.
+    the caller's ``finally`` still turns the torque off. Once the caller has begun that
+    shutdown (:meth:`shutting_down`), further signals are only noted: a second Ctrl-C,
+    or the SIGHUP and SIGTERM a closing terminal sends one after the other, must not cut
+    the torque-off writes short.
+
+    SIGINT and SIGTERM are taken even where the process was started ignoring them (the
+    robot must stop when asked). SIGHUP is left ignored where it was (``nohup slot
+    hardware`` asks the run to outlive its terminal); otherwise it stops the run too.
     """
 
     def __init__(self) -> None:
         self.signum: int | None = None
+        self._shutting_down = False
 
     @property
     def requested(self) -> bool:
@@ -89,10 +101,15 @@ class StopFlag:
     def name(self) -> str:
         return signal.Signals(self.signum).name if self.signum is not None else ""
 
+    def shutting_down(self) -> None:
+        """From now on a signal is not an exception: the torque-off path runs to its end."""
+        self._shutting_down = True
+
     def _handle(self, signum: int, _frame: object) -> None:
-        if self.signum is not None:
+        if self.signum is None:
+            self.signum = signum
+        elif not self._shutting_down:
             raise KeyboardInterrupt
-        self.signum = signum
 
     @contextmanager
     def installed(self) -> Iterator[StopFlag]:
@@ -102,12 +119,18 @@ class StopFlag:
             return
         previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
         for s in STOP_SIGNALS:
-            signal.signal(s, self._handle)
+            if not (s == signal.SIGHUP and previous[s] is signal.SIG_IGN):
+                signal.signal(s, self._handle)
         try:
             yield self
         finally:
             for s, handler in previous.items():
                 signal.signal(s, handler)
+
+
+def exit_code(signum: int) -> int:
+    """128 + the signal's number, the shell's convention (SIGINT 130, SIGTERM 143, SIGHUP 129)."""
+    return 128 + int(signum)
 
 
 # --------------------------------------------------------------------------- a sweep's parent and its jobs

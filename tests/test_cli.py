@@ -557,7 +557,7 @@ def _spawn(args: list[str], cwd: Path) -> subprocess.Popen:
     )
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=["SIGTERM", "SIGINT", "SIGHUP"])
 def test_a_stop_signal_to_the_parent_alone_stops_every_worker_and_closes_every_log(tmp_path: Path, signum) -> None:
     # as timeout, SLURM and systemd send it, to the parent's PID only, with two scenarios running in a pool
     # of two and a third queued behind them
@@ -599,7 +599,7 @@ def _stop_parent_once_logging(proc: subprocess.Popen, logs: list[Path], signum: 
             proc.communicate()
     assert proc.returncode == 128 + signum, stderr
     assert "Traceback" not in stderr, stderr
-    word = "terminated" if signum == signal.SIGTERM else "interrupted"
+    word = {signal.SIGTERM: "terminated", signal.SIGHUP: "hung up"}.get(signum, "interrupted")
     assert [ln for ln in stderr.splitlines() if ln.startswith(word)], stderr
     time.sleep(1.0)
     assert not [pid for pid in workers if _alive(pid) and "resource_tracker" not in _cmdline(pid)], (

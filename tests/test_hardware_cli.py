@@ -1,7 +1,8 @@
 """`slot hardware` as a user runs it: a subprocess against the servo emulator (pty) and a ZeroMQ publisher.
 
-Covers what only a separate process can show: Ctrl-C turns every servo's torque off,
-a killed process is stopped by the servos' bus watchdog, a dry run writes nothing,
+Covers what only a separate process can show: Ctrl-C, SIGTERM and a closed terminal
+(SIGHUP) turn every servo's torque off with the watchdog off, a second run on the same
+port is refused, a killed process is stopped by the servos' bus watchdog, a dry run writes nothing,
 bad input is one line and exit 2, and the hardware log works with `slot figures`
 and `slot run experiment=validate`.
 """
@@ -62,30 +63,124 @@ def wait_for_torque(emu: ServoEmulator, proc: subprocess.Popen, timeout: float =
     raise AssertionError(f"the loop never started:\n{proc.communicate()[1]}")
 
 
-def test_ctrl_c_turns_the_torque_off_and_closes_the_log(tmp_path: Path) -> None:
+def _stop_with(proc: subprocess.Popen, signum: int, timeout: float = 30) -> tuple[str, str]:
+    try:
+        os.killpg(proc.pid, signum)
+        return proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_stop_signal_turns_the_torque_off_without_the_watchdog(signum: int, tmp_path: Path) -> None:
+    """Ctrl-C (what a terminal sends the foreground group) and SIGTERM (a service manager, a timeout) with the
+    bus watchdog off: the run itself turns every servo off, closes its log and exits 128 + n."""
     run_dir = tmp_path / "run"
     with ServoEmulator() as emu, OdometryPublisher() as pub:
-        proc = start(emu, pub, run_dir)
-        try:
-            wait_for_torque(emu, proc)
-            os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
-            stdout, stderr = proc.communicate(timeout=30)
-        finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.communicate()
+        proc = start(emu, pub, run_dir, "hardware.watchdog_ms=0")
+        wait_for_torque(emu, proc)
+        stdout, stderr = _stop_with(proc, signum)
         time.sleep(0.05)
         torque = emu.torque()
-        history = emu.torque_writes()  # the host's writes: a starved run may also trip the watchdog
-    assert proc.returncode == 130, stderr
-    assert "Traceback" not in stderr and "interrupted (SIGINT)" in stderr
+        history = emu.torque_writes()
+        trips = [s.watchdog_trips for s in emu.servos.values()]
+    name = signal.Signals(signum).name
+    assert proc.returncode == 128 + signum, stderr
+    assert "Traceback" not in stderr and f"interrupted ({name})" in stderr
     assert last_line(stdout) == str(run_dir)
-    assert torque == {1: 0, 2: 0, 3: 0, 4: 0}
+    assert torque == {1: 0, 2: 0, 3: 0, 4: 0} and trips == [0, 0, 0, 0]
     assert all(turned_off_after_on(h) for h in history.values()), history
     log = read_log(run_dir / "logs" / "hardware.mcap")
     assert not log.truncated and len(log["/state"]) >= 5
-    assert log.metadata["summary"]["stop_reason"] == "SIGINT"
+    assert log.metadata["summary"]["stop_reason"] == name
     assert (run_dir / "fig4_com.png").is_file()
+
+
+def test_a_closed_terminal_turns_the_torque_off_without_the_watchdog(tmp_path: Path) -> None:
+    """A closed terminal or a dropped SSH connection: the terminal's output goes away (writes fail with EIO)
+    and the session gets SIGHUP. With the watchdog off, the run turns every servo off itself, closes its log
+    and exits 129, although it can no longer print anything."""
+    import pty
+
+    run_dir = tmp_path / "run"
+    master, slave = pty.openpty()
+    with ServoEmulator() as emu, OdometryPublisher() as pub:
+        proc = subprocess.Popen(
+            [
+                *SLOT_CMD,
+                "hardware",
+                f"hardware.port={emu.port}",
+                f"odometry.endpoint={pub.endpoint}",
+                f"hydra.run.dir={run_dir}",
+                "hardware.watchdog_ms=0",
+            ],
+            cwd=tmp_path,
+            stdin=slave,
+            stdout=slave,
+            stderr=slave,
+            start_new_session=True,
+        )
+        os.close(slave)
+        drained = threading.Thread(target=_drain, args=(master,), daemon=True)
+        drained.start()
+        try:
+            wait_for_torque(emu, proc)
+        finally:
+            os.close(master)  # the terminal goes away ...
+        _stop_with(proc, signal.SIGHUP)  # ... and its session is told
+        time.sleep(0.05)
+        torque = emu.torque()
+        history = emu.torque_writes()
+        trips = [s.watchdog_trips for s in emu.servos.values()]
+    assert proc.returncode == 129
+    assert torque == {1: 0, 2: 0, 3: 0, 4: 0} and trips == [0, 0, 0, 0]
+    assert all(turned_off_after_on(h) for h in history.values()), history
+    log = read_log(run_dir / "logs" / "hardware.mcap")
+    assert not log.truncated and len(log["/state"]) >= 5
+    assert log.metadata["summary"]["stop_reason"] == "SIGHUP"
+
+
+def _drain(fd: int) -> None:
+    """Read a pty's output until it closes (a terminal that keeps up)."""
+    try:
+        while os.read(fd, 4096):
+            pass
+    except OSError:
+        pass
+
+
+def test_a_second_run_on_the_same_port_is_refused(tmp_path: Path) -> None:
+    """Two runs on one bus would interleave packets: the second is refused in one line, before it touches the
+    port, and the first goes on undisturbed (no communication error, torque still on, stops cleanly)."""
+    first_dir = tmp_path / "first"
+    with ServoEmulator() as emu, OdometryPublisher() as pub:
+        first = start(emu, pub, first_dir, "hardware.watchdog_ms=0")
+        try:
+            wait_for_torque(emu, first)
+            for extra in ([], ["--dry-run"]):
+                second = slot(
+                    "hardware",
+                    *extra,
+                    f"hardware.port={emu.port}",
+                    f"odometry.endpoint={pub.endpoint}",
+                    f"hydra.run.dir={tmp_path / ('second' + '_'.join(extra))}",
+                    cwd=tmp_path,
+                )
+                line = assert_one_line_error(second, emu.port, "in use by another process", f"PID {first.pid}")
+                assert "slot hardware" in line
+            assert first.poll() is None and all(emu.torque().values())
+            writes_before = len(emu.goal_writes())
+            time.sleep(0.5)
+            assert len(emu.goal_writes()) > writes_before  # still driving the servos
+        finally:
+            _stop_with(first, signal.SIGINT)
+        torque = emu.torque()
+    assert first.returncode == 130
+    assert torque == {1: 0, 2: 0, 3: 0, 4: 0}
+    summary = read_log(first_dir / "logs" / "hardware.mcap").metadata["summary"]
+    assert summary["comm_errors"] == "0" and summary["comm_retries"] == "0"
 
 
 def test_a_killed_process_is_stopped_by_the_bus_watchdog(tmp_path: Path) -> None:

@@ -247,3 +247,31 @@ def test_a_busy_live_port_leaves_the_robot_running_with_a_warning(tmp_path: Path
     (warning,) = [n for n in notes if n.startswith("warning: live view")]
     assert f"cannot listen on 127.0.0.1:{port}" in warning and "live=false" in warning
     assert len(read_log(result.log_path)["/state"]) == 15  # the run went on: 0.5 s at 30 Hz
+
+
+def test_the_stop_flag_takes_every_stop_signal_and_nothing_cuts_the_shutdown_short() -> None:
+    """The first signal asks for a stop; a second raises (a loop stuck in a solve); once the torque-off path has
+    begun, further signals are only noted; the handlers are put back afterwards; nohup's ignored SIGHUP stays."""
+    import signal
+
+    from slotexp.signals import STOP_SIGNALS, StopFlag
+
+    before = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    stop = StopFlag()
+    with stop.installed():
+        signal.raise_signal(signal.SIGHUP)
+        assert stop.requested and stop.name == "SIGHUP"
+        with pytest.raises(KeyboardInterrupt):
+            signal.raise_signal(signal.SIGTERM)
+        stop.shutting_down()
+        signal.raise_signal(signal.SIGINT)  # a second Ctrl-C during torque off: noted, not raised
+        signal.raise_signal(signal.SIGTERM)
+        assert stop.name == "SIGHUP"
+    assert {s: signal.getsignal(s) for s in STOP_SIGNALS} == before
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with StopFlag().installed() as ignoring:
+            signal.raise_signal(signal.SIGHUP)
+            assert not ignoring.requested and signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)

@@ -28,6 +28,7 @@ from ..errors import BusError, UserError
 from . import xl430 as X
 from .config import HardwareConfig
 from .mapping import ServoMap
+from .portlock import PortLock
 
 
 @dataclass
@@ -89,6 +90,7 @@ class DynamixelBus:
         self._writer = None
         self._writer_ready = False
         self._torque_may_be_on = False
+        self._lock = PortLock(self.cfg.port)
 
     # ------------------------------------------------------------------ helpers
     def _leg(self, servo_id: int) -> str:
@@ -150,6 +152,7 @@ class DynamixelBus:
         port_name = self.cfg.port
         if not os.path.exists(port_name):
             raise UserError(f"serial port {port_name} does not exist: is the U2D2 plugged in? (set hardware.port=...)")
+        self._lock.acquire()  # before the SDK opens (and flushes) the port: a second run must not touch the bus
         self._port = PortHandler(port_name)
         self._ph = PacketHandler(X.PROTOCOL)
         try:
@@ -343,6 +346,7 @@ class DynamixelBus:
     def close(self) -> None:
         if self._port is not None and self._port.is_open:
             self._port.closePort()
+        self._lock.release()
 
 
 X_COMM_SUCCESS = 0  # dynamixel_sdk.robotis_def.COMM_SUCCESS, without importing the SDK at module load

@@ -41,7 +41,7 @@ from .timing import Deadlines, LoopStats
 @dataclass
 class LoopOutcome:
     steps: int
-    stop_reason: str  # duration | replay finished | SIGINT | SIGTERM | stale odometry | bus | hardware error
+    stop_reason: str  # duration | replay finished | SIGINT | SIGTERM | SIGHUP | stale odometry | bus | hardware error
     stats: LoopStats
     clamped: np.ndarray = field(default_factory=lambda: np.zeros(4, dtype=np.int64))  # cycles clamped, per servo
     comm_retries: int = 0

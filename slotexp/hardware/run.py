@@ -4,15 +4,18 @@ The order is chosen for safety. Everything that can fail on bad input (the port,
 the pings, the model numbers, the servos' error status, the first odometry
 message) fails before torque is ever enabled, as a :class:`~slotexp.errors.UserError`
 (one line, exit 2). Once the loop runs, every way out (end of ``duration``,
-Ctrl-C, SIGTERM, stale odometry, bus failure, hardware error, a bug) passes
-through the same ``finally``: torque off on every servo first, then the log's
-summary, then the log is closed.
+Ctrl-C, SIGTERM, SIGHUP, stale odometry, bus failure, hardware error, a bug) passes
+through the same ``finally``: torque off on every servo first (no further signal
+interrupts it), then the log's summary, then the log is closed. The servos' bus
+watchdog is a second line for what no ``finally`` survives (SIGKILL, a power cut of
+the computer); the torque-off path does not rely on it.
 """
 
 from __future__ import annotations
 
 import copy
 import datetime as _dt
+import signal
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,7 +28,7 @@ from ..live import open_view
 from ..plants import TendonCommand
 from ..record import Recorder
 from ..robot import RobotModel, build_robot
-from ..signals import StopFlag
+from ..signals import STOP_SIGNALS, StopFlag, exit_code
 from ..telemetry import Tee
 from .bus import DynamixelBus, ServoBus
 from .config import HardwareSlotConfig
@@ -37,7 +40,6 @@ from .xl430 import DEG_PER_TICK
 
 EXIT_OK = 0
 EXIT_SAFETY_STOP = 3
-EXIT_SIGNAL = {"SIGINT": 130, "SIGTERM": 143}
 LOG_NAME = "hardware.mcap"
 
 
@@ -93,6 +95,22 @@ def _run_metadata(cfg: HardwareSlotConfig, commit: str) -> dict[str, str]:
     }
 
 
+_SIGNAL_NAMES = {s.name for s in STOP_SIGNALS}
+
+
+def _best_effort(notify: Callable[[str], None]) -> Callable[[str], None]:
+    """``notify`` that never raises for a closed stream: after SIGHUP the terminal is gone, and writing to it
+    (EIO, a broken pipe) must not stand between a stop signal and the torque-off path or the log's summary."""
+
+    def tell(message: str) -> None:
+        try:
+            notify(message)
+        except OSError:
+            pass
+
+    return tell
+
+
 def _fmt(value: float) -> str:
     return f"{value:.6g}"
 
@@ -106,6 +124,7 @@ def run_hardware(
 ) -> HardwareResult:
     """Run the loop on the configured bus and odometry; write ``out_dir/logs/hardware.mcap``."""
     hw, od = cfg.hardware, cfg.odometry
+    notify = _best_effort(notify)
     robot = build_robot(cfg.robot)
     smap = ServoMap.from_config(hw, cfg.robot.leg.tendon_max_deg)
     lo, hi = smap.tendon_range_deg()
@@ -126,7 +145,7 @@ def run_hardware(
             first = wait_first(odometry, od.startup_timeout_s, lambda: stop.requested)
             if first is None:
                 return HardwareResult(
-                    EXIT_SIGNAL.get(stop.name, 130),
+                    exit_code(stop.signum or signal.SIGINT),
                     f"interrupted ({stop.name}) before the loop started: torque was never on",
                     None,
                     None,
@@ -170,6 +189,7 @@ def run_hardware(
                 except KeyboardInterrupt:
                     outcome.stop_reason = stop.name or "SIGINT"
                 finally:
+                    stop.shutting_down()  # a further signal must not cut the torque-off writes short
                     problems = bus.disable()  # first, before any bookkeeping
                     if problems:
                         outcome.error = (
@@ -179,15 +199,16 @@ def run_hardware(
                         )
                     _write_summary(rec, outcome, controller, bus, odometry, time.perf_counter() - started)
         finally:
+            stop.shutting_down()
             bus.disable()
             bus.close()
             odometry.close()
     notify(f"hardware: {outcome.stats.one_line()}; stopped: {outcome.stop_reason}")
     if outcome.error:
         return HardwareResult(EXIT_SAFETY_STOP, outcome.error, log_path, outcome)
-    if outcome.stop_reason in EXIT_SIGNAL:
+    if outcome.stop_reason in _SIGNAL_NAMES:
         return HardwareResult(
-            EXIT_SIGNAL[outcome.stop_reason],
+            exit_code(signal.Signals[outcome.stop_reason]),
             f"interrupted ({outcome.stop_reason}): torque off, the log is closed and readable",
             log_path,
             outcome,
