@@ -284,10 +284,11 @@ def test_the_normal_force_offsets_drop_only_the_twist_the_plan_leaves_open() -> 
 def test_the_attitude_trim_lowers_the_high_corners_at_its_rate_and_holds_within_its_reach() -> None:
     from slotexp.controllers.gait_mpc import MAX_TRIM_DEG, MM_PER_DEG
 
-    cfg = load("plant=cosserat", "controller.attitude_trim=0.5")
+    cfg = load("plant=cosserat", "controller.attitude_trim=0.5", "controller.heading_kp=0", "controller.heading_ki=0")
     robot = build_robot(cfg.robot)
     ctrl = make_controller(cfg, robot)
     x = nominal_state(robot)
+    x[5] = cfg.gait.height
     feet = x[3:6] + robot.feet_body
     level = np.tile([0.0, 0.0, ctrl.weight / 4.0], (4, 1))  # a plan with no normal-force offsets
     x[1] = -0.03  # nose up: the front corners (x > 0) sit high by 0.03 rad x their lever
@@ -302,6 +303,33 @@ def test_the_attitude_trim_lowers_the_high_corners_at_its_rate_and_holds_within_
     left = robot.corners_body[:, 1] > 0
     np.testing.assert_allclose(ctrl.trim[left], -MAX_TRIM_DEG)
     np.testing.assert_allclose(ctrl.trim[~left], MAX_TRIM_DEG)
+
+
+def test_the_trim_levels_across_the_heading_loops_lean_and_standing_holds_the_height_too() -> None:
+    """Walking forward, the heading loop's lean is a roll pattern (left legs against right): the trim must not
+    integrate against it, or the two wind up; it still levels pitch. Standing, it also holds the stance's
+    height (every leg alike); walking, the gait keeps its own posture."""
+    from slotexp.controllers.gait_mpc import MM_PER_DEG
+
+    cfg = load("plant=cosserat", "controller.attitude_trim=0.5", "gait.velocity=[0.02,0]")
+    robot = build_robot(cfg.robot)
+    ctrl = make_controller(cfg, robot)
+    x = nominal_state(robot)
+    x[5] = cfg.gait.height - 0.002  # 2 mm low: walking, the trim leaves the height to the gait
+    feet = x[3:6] + robot.feet_body
+    level = np.tile([0.0, 0.0, ctrl.weight / 4.0], (4, 1))
+    x[0], x[1] = 0.03, -0.03  # rolled and pitched
+    for _ in range(30):
+        ctrl.adjust(x, feet, level, None)
+    left = robot.corners_body[:, 1] > 0
+    front = robot.corners_body[:, 0] > 0
+    roll_part = ctrl.trim @ np.where(left, 1.0, -1.0)
+    assert abs(roll_part) < 1e-9 and abs(ctrl.trim.sum()) < 1e-9  # nothing along the lean, nothing common
+    assert np.all(ctrl.trim[front] < 0) and np.all(ctrl.trim[~front] > 0)  # pitch is levelled
+    standing = make_controller(load("plant=cosserat", "controller.attitude_trim=0.5", "gait.velocity=[0,0]"), robot)
+    x[0] = x[1] = 0.0
+    standing.adjust(x, feet, level, None)
+    np.testing.assert_allclose(standing.trim, 0.5 * standing.period * 2.0 / MM_PER_DEG, rtol=1e-12)  # all wind in
 
 
 def test_a_command_beyond_the_gait_librarys_envelope_gets_one_warning_naming_it_and_a_reachable_override():

@@ -109,6 +109,7 @@ class GaitController(MpcController):
                 default=(0.0, float("nan")),
             )[1],
             "gait_deg": gait,
+            **self.extra_telemetry(),
         }
         tendon = np.clip(tendon, 0.0, self.top)
         return ControlStep(
@@ -126,6 +127,10 @@ class GaitController(MpcController):
     def adjust(self, x: np.ndarray, feet: np.ndarray, forces: np.ndarray, solution) -> np.ndarray:
         """Tendon angle offsets (4,) on top of the gait, and the command's update; none here."""
         return np.zeros(4)
+
+    def extra_telemetry(self) -> dict:
+        """A subclass's own state for the log's ``/controller`` topic (computed in :meth:`adjust`)."""
+        return {}
 
 
 def envelope_warning(cfg: SlotConfig) -> str | None:

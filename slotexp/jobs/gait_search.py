@@ -285,7 +285,7 @@ def library_from_log(cfg: SlotConfig, verified: pd.DataFrame) -> GaitStyleConfig
             str(row["name"]),
             *(np.array([row[f"{key}.{k}"] for k in range(4)]) for key in ("base_deg", "amplitude_deg", "phase")),
         )
-        m = GaitMetrics(**{k: float(row[k]) for k in GaitMetrics.__dataclass_fields__})
+        m = GaitMetrics(**{k: float(row[k]) for k in GaitMetrics.__dataclass_fields__ if k in row})
         turning = str(row["target"]) == TURN
         new.append(
             PrimitiveConfig(

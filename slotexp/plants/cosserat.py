@@ -205,6 +205,10 @@ class CosseratPlant:
     def feet(self) -> np.ndarray:
         return self.leg_world()[:, -1, :]
 
+    def foot_reach(self) -> np.ndarray:
+        """Each foot's distance from its leg's root along the leg's plane (4,), m: a stroke is how far it moves."""
+        return self.pos[:, -1, 0].copy()
+
     def legs(self) -> np.ndarray:
         return self.leg_world()
 
