@@ -24,7 +24,9 @@ WALK_FAST = 0.028
 CRAWL = 0.006
 OMNI = 0.015
 LATERAL = 0.015
-TABLE1 = 0.015
+TABLE1 = 0.02  # the walk's own command (at 15 mm/s the partial stroke yaws more than the lean can hold)
+TABLE1_SLOW = 0.015  # the speed Table I walked at before the heading loop, kept for comparison
+WALK_40 = 0.04  # half the paper's 80 mm/s: beyond the library's envelope (results/README.md says why)
 HEADING_SPEED = 0.015
 # The soft model's uncertain settings experiment=identify fits: the floor's friction, the horn zero, E, damping
 FITTED = (
@@ -44,6 +46,19 @@ HELD_OUT = (
     "experiment.schedules=[walk_30,walk_60,walk_120,walk_135,walk_150,walk_210,walk_225,walk_240,walk_300,"
     "walk_315,walk_330,turn_right,turn_left]"
 )
+# Models across the ranges identification reported (friction 0.1-0.8, E 7e6-2e7 Pa, damping 5-50 /s, horn zero
+# 90-130 deg), for the controller's robustness: the same settings and library on each.
+ROBUSTNESS_MODELS = {
+    "mu0.4": ["robot.contact.friction=0.4"],
+    "E2e7_d5": ["robot.leg.youngs_modulus=2e7", "robot.leg.damping_per_s=5"],
+    "horn110_mu0.8_E7e6_d50": [
+        "robot.servo.horn_zero_deg=[110,110,110,110]",
+        "robot.contact.friction=0.8",
+        "robot.leg.youngs_modulus=7e6",
+        "robot.leg.damping_per_s=50",
+    ],
+    "horn90": ["robot.servo.horn_zero_deg=[90,90,90,90]"],
+}
 LIBRARY = ROOT / "conf" / "library" / "default.yaml"
 CALIBRATED = ROOT / "conf" / "actuation" / "calibrated.yaml"
 
@@ -218,7 +233,99 @@ RUNS = {
         f"gait.velocity=[{TABLE1},0]",
         "experiment.cost_average=gait_cycle",
     ],
+    "perturb_cosserat_15mms": [
+        "experiment=perturb",
+        "plant=cosserat",
+        f"gait.velocity=[{TABLE1_SLOW},0]",
+        "experiment.cost_average=gait_cycle",
+    ],
     "perturb_cosserat_standstill": ["experiment=perturb", "plant=cosserat", "gait.velocity=[0,0]"],
+    # omni60 for 120 s: does the 45/90-deg cycle blend hold its line however long?
+    "simulate_cosserat_omni60_120s": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=omni60",
+        f"gait.velocity=[{OMNI * 0.5:.4f},{OMNI * 0.8660254:.4f}]",
+        "experiment.duration=120",
+        "experiment.gif=false",
+    ],
+    # half the paper's 80 mm/s, asked of the soft legs
+    "simulate_cosserat_walk_40mms": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        f"gait.velocity=[{WALK_40},0]",
+        "experiment.duration=30",
+        "experiment.gif=false",
+    ],
+    # the library as it stands, measured again with each primitive's stroke, ceiling and turning authority
+    "library_walk": [
+        "experiment=gait_search",
+        "plant=cosserat",
+        "experiment.style=walk",
+        "sim.dt=1e-4",
+        "experiment.search=false",
+    ],
+    # Faster walking: the forward gait searched at other clocks and duty factors, and from the robot's own
+    # forward gait (its reach-and-pull steps shaped as a primitive); none is installed (results/README.md)
+    **{
+        f"speed_search_{tag}": [
+            "experiment=gait_search",
+            "plant=cosserat",
+            "sim.dt=1e-4",
+            "experiment.style=walk",
+            "experiment.headings=[0]",
+            "experiment.turn=false",
+            f"experiment.start_from={start}",
+            f"experiment.max_evals={evals}",
+            *style,
+        ]
+        for tag, start, evals, style in (
+            ("f2.5", "walk_h+000.0", 200, ["controller.library.walk.frequency_hz=2.5"]),
+            ("f1.5", "walk_h+000.0", 200, ["controller.library.walk.frequency_hz=1.5"]),
+            (
+                "f1.25_duty0.55",
+                "walk_h+000.0",
+                200,
+                ["controller.library.walk.frequency_hz=1.25", "controller.library.walk.duty=0.55"],
+            ),
+            (
+                "robot_forward_f1.2",
+                "forward",
+                300,
+                ["controller.library.walk.frequency_hz=1.2", "controller.library.walk.duty=0.5"],
+            ),
+        )
+    },
+    # The same controller settings on models across the identified ranges (the library searched on the default only)
+    **{
+        f"robust_{model}_{run}": ["plant=cosserat", *overrides, *args]
+        for model, overrides in ROBUSTNESS_MODELS.items()
+        for run, args in {
+            "walk": [
+                "experiment=simulate",
+                "gait=walk",
+                f"gait.velocity=[{WALK},0]",
+                "experiment.duration=30",
+                "experiment.gif=false",
+            ],
+            "lateral": [
+                "experiment=simulate",
+                "gait=lateral",
+                f"gait.velocity=[0,{LATERAL}]",
+                "experiment.duration=30",
+                "experiment.gif=false",
+            ],
+            "omni60": [
+                "experiment=simulate",
+                "gait=omni60",
+                f"gait.velocity=[{OMNI * 0.5:.4f},{OMNI * 0.8660254:.4f}]",
+                "experiment.duration=45",
+                "experiment.gif=false",
+            ],
+            "perturb": ["experiment=perturb", f"gait.velocity=[{TABLE1},0]", "experiment.cost_average=gait_cycle"],
+        }.items()
+    },
     # The physical robot's own gaits (shared/data) replayed on the soft plant, beside the robot; and the same
     # replays with a model option each (a first look, nothing fitted; results/README.md, "The robot's own gaits").
     "replay": ["experiment=replay", "plant=cosserat"],

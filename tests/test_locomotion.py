@@ -258,7 +258,7 @@ def test_open_loop_and_gait_mpc_take_tendon_commands_the_plant_can_use() -> None
 
 def test_gait_search_refuses_a_start_primitive_the_library_lacks() -> None:
     assert load("plant=cosserat", "experiment=gait_search", "experiment.start_from=walk_turn").experiment.start_from
-    with pytest.raises(ConfigError, match="experiment.start_from = 'nope' is not a walk primitive"):
+    with pytest.raises(ConfigError, match="experiment.start_from = 'nope' is neither a walk primitive nor a sched"):
         load("plant=cosserat", "experiment=gait_search", "experiment.start_from=nope")
 
 
@@ -358,3 +358,21 @@ def test_the_soft_plant_walks_each_gait_by_default_inside_the_librarys_envelope(
     assert envelope_warning(soft) is None
     asked = load("plant=cosserat", "experiment=simulate", f"gait={gait}", "gait.velocity=[0.001,0.002]")
     assert asked.gait.velocity == [0.001, 0.002]
+
+
+def test_a_step_schedule_seeds_a_primitive_of_its_shape() -> None:
+    """The robot's forward gait: FL then FR reach (low) for a step each, the rear legs stand: as a primitive the
+    front legs swing half a cycle apart over their range and the rear legs hold their angle."""
+    from slotexp.locomotion.primitives import from_steps
+
+    steps = np.array([[0.0, 80.0, 80.0, 80.0], [80.0, 80.0, 80.0, 0.0]])  # FL, RL, RR, FR
+    p = from_steps("forward", steps, TOP)
+    np.testing.assert_allclose(p.base_deg, [0.0, 80.0, 80.0, 0.0])
+    np.testing.assert_allclose(p.amplitude_deg, [80.0, 0.0, 0.0, 80.0])
+    assert abs(((p.phase[3] - p.phase[0]) % 1.0) - 0.5) < 1e-12
+    psi = np.linspace(0.0, 1.0, 400, endpoint=False)
+    angles = p.angles(STYLE, psi, TOP)
+    high = angles > 40.0
+    assert high[:, 0].any() and high[:, 3].any() and not np.any(high[:, 0] & high[:, 3])  # the front legs alternate
+    np.testing.assert_allclose(angles[:, 1:3], 80.0)
+    assert load("plant=cosserat", "experiment=gait_search", "experiment.start_from=forward").experiment.start_from

@@ -140,3 +140,35 @@ def test_gait_search_sweeps_headings_as_a_hydra_multirun(tmp_path):
         metrics = json.loads((job / "metrics.json").read_text())
         assert [v["target"] for v in metrics["verified"]][0] == target
         assert (job / "library.yaml").is_file() and (job / "fig_search.png").is_file()
+
+
+def test_gait_search_measures_the_library_as_it_stands_with_stroke_and_turning_authority(tmp_path):
+    """experiment.search=false: every primitive of the style measured as it is (no candidates), a translating
+    one also leaning either way; library.md tabulates speed, stroke, ceiling and turning authority."""
+    run_dir = tmp_path / "verify"
+    ok(
+        slot(
+            "run",
+            "experiment=gait_search",
+            "plant=cosserat",
+            "experiment.style=crawl",
+            "experiment.search=false",
+            "experiment.settle=0.5",
+            "experiment.verify_duration=1.5",
+            "experiment.parallel.workers=1",
+            f"hydra.run.dir={run_dir}",
+            cwd=tmp_path,
+            timeout=600,
+        )
+    )
+    log = read_log(run_dir / "logs" / "gait_search.mcap")
+    assert "/search/candidate" not in log
+    verified = json.loads((run_dir / "metrics.json").read_text())["verified"]
+    assert [v["name"] for v in verified] == ["crawl_h+000.0", "crawl_h+000.0_my", "crawl_h+090.0", "crawl_h+090.0_mx"]
+    for v in verified:
+        assert v["stroke_mm"] > 1.0 and v["stroke_ceiling_mm_s"] > v["speed"]  # a ceiling above what it does
+        assert np.isfinite(v["lean_yaw_left_dps"]) and np.isfinite(v["lean_yaw_right_dps"])
+    table = (run_dir / "library.md").read_text().splitlines()
+    assert sum(line.startswith("| crawl_") for line in table) == 4
+    library = (run_dir / "library.yaml").read_text()
+    assert all(name in library for name in ("crawl_h+000.0_my", "crawl_h+090.0_mx"))

@@ -30,11 +30,14 @@ import yaml
 from ..atomic import write_csv, write_json, write_text
 from ..config import GaitStyleConfig, PrimitiveConfig, SlotConfig, check_library, num_field
 from ..errors import ConfigError
+from ..locomotion.heading import lean_pattern
 from ..locomotion.openloop import GaitMetrics, run_gait
-from ..locomotion.primitives import GaitStyle, Primitive
+from ..locomotion.primitives import GaitStyle, Primitive, from_steps
+from ..locomotion.schedules import schedule_tendon_deg
 from ..locomotion.search import cost, from_vector, search, to_vector
 from ..parallel import ParallelConfig, pool
 from ..record import Recorder, read_log
+from ..soft.servo import HornMap
 from . import EXPERIMENTS, Experiment
 from ._logged import git_commit
 
@@ -51,7 +54,9 @@ class GaitSearchExperiment:
     headings: list[float] = field(default_factory=lambda: [0.0, 90.0, 45.0, 60.0])
     turn: bool = True  # also search turning in place (left; right by mirror)
     free_phases: bool = True  # false: keep the starting primitive's phases
-    start_from: str | None = None  # a library primitive every heading starts from (default: the nearest)
+    # a library primitive, or one of the robot's schedules (conf/schedule/, shaped as a primitive), every heading
+    # starts from (default: the nearest primitive)
+    start_from: str | None = None
     max_evals: int = num_field(300, lo=2, hi=100000, unit="candidates per heading")
     popsize: int = num_field(12, lo=2, hi=1000, unit="")
     sigma0: float = num_field(0.15, lo=0.0, lo_open=True, hi=1.0, unit="of the tendon range")  # a new heading
@@ -61,6 +66,9 @@ class GaitSearchExperiment:
     verify_duration: float = num_field(8.0, lo=0.5, hi=600.0, unit="s")  # the library's measurements
     # a translating gait slower than this when verified stays out of the library (a failed heading)
     min_speed: float = num_field(5.0, lo=0.0, unit="mm/s")
+    # false: search nothing; measure the library's primitives as they stand (a changed model, the report's
+    # columns) and write the library with what they measured
+    search: bool = True
     seed: int = num_field(1, lo=0, unit="")
     parallel: ParallelConfig = field(default_factory=ParallelConfig)
 
@@ -73,13 +81,16 @@ class GaitSearchExperiment:
                 f"{', '.join(cfg.controller.library) or '(none)'} (conf/library/)"
             )
         check_library(cfg, [self.style])  # its candidates are played at mpc.rate_hz
-        if not self.headings and not self.turn:
-            raise ConfigError("nothing to search: give experiment.headings or experiment.turn=true")
-        names = [p.name for p in cfg.controller.library[self.style].primitives]
-        if self.start_from is not None and self.start_from not in names:
+        if self.search and not self.headings and not self.turn:
             raise ConfigError(
-                f"experiment.start_from = {self.start_from!r} is not a {self.style} primitive: choose one of "
-                f"{', '.join(names)}"
+                "nothing to search: give experiment.headings or experiment.turn=true "
+                "(or experiment.search=false to measure the library as it stands)"
+            )
+        names = [p.name for p in cfg.controller.library[self.style].primitives]
+        if self.start_from is not None and self.start_from not in names and self.start_from not in cfg.schedules:
+            raise ConfigError(
+                f"experiment.start_from = {self.start_from!r} is neither a {self.style} primitive nor a schedule: "
+                f"choose one of {', '.join(names)}, or a schedule ({', '.join(cfg.schedules)})"
             )
         if self.settle >= self.duration:
             raise ConfigError(
@@ -95,16 +106,22 @@ class GaitSearchExperiment:
 
 
 # --------------------------------------------------------------------------- evaluation (in workers)
-def _evaluate(task: tuple[SlotConfig, GaitStyle, Primitive, float, float]) -> dict:
+def _evaluate(task: tuple) -> dict:
     """Run one primitive open loop. It is passed whole, not as the search's vector: the vector keeps the legs'
     phases relative to the first leg's, and a schedule shifted in time is sampled at other 30 Hz ticks, so on
     the plant it is another gait (measured: the forward gait's front/back mirror image walks 31.7 mm/s as it
-    stands and 15.7 mm/s shifted by 0.11 cycle to put its first leg's phase at zero)."""
-    cfg, style, prim, duration, settle = task
+    stands and 15.7 mm/s shifted by 0.11 cycle to put its first leg's phase at zero). An optional sixth item
+    adds constant tendon offsets (4,), deg (the heading loop's lean, :func:`_lean_probes`)."""
+    cfg, style, prim, duration, settle, *rest = task
+    offsets = np.asarray(rest[0], float) if rest else np.zeros(4)
     top = cfg.robot.leg.tendon_max_deg
     try:
         return run_gait(
-            cfg, lambda t: prim.angles(style, style.frequency_hz * t, top), style.frequency_hz, duration, settle
+            cfg,
+            lambda t: np.clip(prim.angles(style, style.frequency_hz * t, top) + offsets, 0.0, top),
+            style.frequency_hz,
+            duration,
+            settle,
         ).as_dict()
     except Exception as exc:  # a candidate that diverges is a bad candidate, not a failed search
         return {"error": f"{type(exc).__name__}: {exc}"}
@@ -187,6 +204,10 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
     current = _primitives(cfg.controller.library[exp.style])
     # experiment.start_from, taken from the library as it was (a searched heading may replace it in `current`)
     fixed_start = next((p for p in current if p.name == exp.start_from), None)
+    if exp.start_from in cfg.schedules and fixed_start is None:  # the robot's own gait, shaped as a primitive
+        horn = HornMap.from_config(cfg.robot.servo)
+        steps = schedule_tendon_deg(cfg.schedules[exp.start_from], list(cfg.robot.leg.names), horn)
+        fixed_start = from_steps(exp.start_from, steps, top)
     # in the order given, each heading starting from the nearest gait found so far (or a quarter turn of one)
     targets: list[float | str] = [float(h) for h in exp.headings] + ([TURN] if exp.turn else [])
     (out_dir / "logs").mkdir(parents=True, exist_ok=True)
@@ -198,6 +219,9 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         Progress(*columns, console=Console(stderr=True), transient=False) as bar,
     ):
         written = 0  # candidates logged so far: the log's clock
+        if not exp.search:
+            targets = []
+            task_all = bar.add_task("verify", total=len(current))
         for i, target in enumerate(targets):
             task = bar.add_task(f"{_label(target):<8}", total=exp.max_evals + 1)
             start = fixed_start if fixed_start is not None and target != TURN else _start(current, target)
@@ -241,23 +265,60 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
                 1.0 if target == TURN else 0.0,
             )
             current = [p for p in current if not _near(p, target)] + [found]  # the next target starts from it
-            images = _mirrors(prim, target)
-            checks = engine.map(_evaluate, [(cfg, style, p, exp.verify_duration, exp.settle) for p in images])
-            for image, check in zip(images, checks, strict=True):
-                rec.write(
-                    "/search/verified",
-                    float(i),
-                    {
-                        "target": _label(target),
-                        "name": image.name,
-                        "nominal_heading_deg": _nominal(image),
-                        "base_deg": image.base_deg,
-                        "amplitude_deg": image.amplitude_deg,
-                        "phase": image.phase,
-                        **_numeric(check),
-                    },
-                )
+            _verify(cfg, style, _mirrors(prim, target), _label(target), engine, rec, float(i))
+        if not exp.search:  # the library as it stands, measured again (each primitive with its own heading)
+            for i, prim in enumerate(current):
+                label = TURN if prim.heading_deg is None else _label(prim.heading_deg)
+                _verify(cfg, style, [prim], label, engine, rec, float(i))
+                bar.advance(task_all, 1)
     report(out_dir, cfg)
+
+
+LEAN_PROBE_DEG = 10.0  # the lean (deg of tendon) each translating primitive is measured with, either way
+
+
+def _lean_probes(prim: Primitive, leg_yaw: np.ndarray) -> list[np.ndarray]:
+    """Tendon offsets for a lean of +-LEAN_PROBE_DEG towards the left of the primitive's nominal heading."""
+    pattern = lean_pattern(leg_yaw, np.radians(prim.heading_deg))
+    return [LEAN_PROBE_DEG * pattern, -LEAN_PROBE_DEG * pattern]
+
+
+def _verify(
+    cfg: SlotConfig, style: GaitStyle, images: list[Primitive], label: str, engine, rec: Recorder, clock: float
+) -> None:
+    """Measure each primitive as it stands over ``experiment.verify_duration`` and log it as ``/search/verified``;
+    a translating one also with the heading loop's lean either way (its turning authority while walking)."""
+    exp = cfg.experiment
+    leg_yaw = np.radians(cfg.robot.leg.yaw_deg)
+    tasks = [(cfg, style, p, exp.verify_duration, exp.settle) for p in images]
+    probed = [p for p in images if p.heading_deg is not None]
+    tasks += [(cfg, style, p, exp.verify_duration, exp.settle, o) for p in probed for o in _lean_probes(p, leg_yaw)]
+    results = engine.map(_evaluate, tasks)
+    checks, leans = results[: len(images)], iter(results[len(images) :])
+    for image, check in zip(images, checks, strict=True):
+        authority = {}
+        if image.heading_deg is not None:
+            left, right = next(leans), next(leans)
+            if "error" not in left and "error" not in right and "error" not in check:
+                authority = {
+                    "lean_yaw_left_dps": left["yaw_rate_dps"] - check["yaw_rate_dps"],
+                    "lean_yaw_right_dps": right["yaw_rate_dps"] - check["yaw_rate_dps"],
+                    "lean_speed_mm_s": 0.5 * (left["speed"] + right["speed"]),
+                }
+        rec.write(
+            "/search/verified",
+            clock,
+            {
+                "target": label,
+                "name": image.name,
+                "nominal_heading_deg": _nominal(image),
+                "base_deg": image.base_deg,
+                "amplitude_deg": image.amplitude_deg,
+                "phase": image.phase,
+                **_numeric(check),
+                **authority,
+            },
+        )
 
 
 def _cost(result: dict, target: float | str) -> float:
@@ -324,9 +385,10 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
 
     exp = cfg.experiment
     log = read_log(out_dir / "logs" / "gait_search.mcap")
-    candidates = log["/search/candidate"]
+    candidates = log["/search/candidate"] if "/search/candidate" in log else pd.DataFrame()
     verified = log["/search/verified"] if "/search/verified" in log else pd.DataFrame()
-    write_csv(candidates.drop(columns="t"), out_dir / "search.csv", index=False, float_format="%.6g")
+    if len(candidates):
+        write_csv(candidates.drop(columns="t"), out_dir / "search.csv", index=False, float_format="%.6g")
     library = library_from_log(cfg, verified)
     text = yaml.safe_dump(
         {exp.style: OmegaConf.to_container(OmegaConf.structured(library))},
@@ -340,7 +402,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         f"{exp.style}); measured at sim.dt = {cfg.sim.dt:g} s.\n" + text,
     )
     best = {}
-    for target, group in candidates.groupby("target"):
+    for target, group in candidates.groupby("target") if len(candidates) else ():
         row = group.loc[group["cost"].idxmin()]
         best[str(target)] = {
             "cost": float(row["cost"]),
@@ -360,10 +422,50 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         else [],
     }
     write_json(out_dir / "metrics.json", result)
-    plot_search(candidates, out_dir / "fig_search.png")
+    if len(candidates):
+        plot_search(candidates, out_dir / "fig_search.png")
     if len(verified):
         plot_polar(verified, out_dir / "fig_gait_polar.png", exp.style)
+        write_text(out_dir / "library.md", library_table(verified, exp.style, cfg.sim.dt))
     return result
+
+
+def library_table(verified: pd.DataFrame, style: str, dt: float) -> str:
+    """Markdown: what each verified primitive does (speed, heading, yaw rate), its feet's stroke and the stroke
+    ceiling with the grip efficiency (:mod:`slotexp.locomotion.openloop`), and its turning authority: the yaw
+    rate a lean of +-LEAN_PROBE_DEG adds while walking (:mod:`slotexp.locomotion.heading`), or its own while
+    turning in place."""
+
+    def num(row: pd.Series, key: str, fmt: str) -> str:
+        value = row.get(key, np.nan)
+        return format(float(value), fmt) if pd.notna(value) else "—"
+
+    lines = [
+        f"Gait library '{style}', each primitive measured open loop at sim.dt = {dt:g} s. Stroke: each foot's travel "
+        "along its leg per cycle (mean of the four); ceiling: the speed every stroke would give gripped whole; "
+        f"turning authority: the yaw rate a lean of {LEAN_PROBE_DEG:g} deg of tendon adds, to the left / right, "
+        "while walking (turning primitives: their own yaw rate in place).",
+        "",
+        "| primitive | heading (deg) | speed (mm/s) | yaw rate (deg/s) | stroke (mm) | ceiling (mm/s) "
+        "| grip efficiency | turning authority (deg/s) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for _, row in verified.iterrows():
+        turning = str(row["target"]) == TURN
+        ceiling = float(row.get("stroke_ceiling_mm_s", np.nan))
+        efficiency = float(row["speed"]) / ceiling if ceiling > 0 else np.nan
+        authority = (
+            f"{float(row['yaw_rate_dps']):+.2f} in place"
+            if turning
+            else f"{num(row, 'lean_yaw_left_dps', '+.2f')} / {num(row, 'lean_yaw_right_dps', '+.2f')}"
+        )
+        lines.append(
+            f"| {row['name']} | {'—' if turning else num(row, 'heading_deg', '.1f')} | {num(row, 'speed', '.2f')} "
+            f"| {num(row, 'yaw_rate_dps', '+.3f')} | {num(row, 'stroke_mm', '.1f')} "
+            f"| {num(row, 'stroke_ceiling_mm_s', '.1f')} "
+            f"| {'—' if np.isnan(efficiency) or turning else f'{efficiency:.2f}'} | {authority} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 EXPERIMENTS.add("gait_search", Experiment(GaitSearchExperiment, run, report))

@@ -136,6 +136,26 @@ class Primitive:
         return Primitive(name, np.full(4, angle_deg), np.zeros(4), np.zeros(4))
 
 
+def from_steps(name: str, steps_deg: np.ndarray, top: float) -> Primitive:
+    """A primitive shaped like a step schedule (steps, 4) of tendon angles, stretched over one gait cycle:
+    per leg the base is its lowest angle and the amplitude its range (clipped to [0, ``top``]), and the phase puts
+    the waveform's high part at the middle of the steps where the leg is high. A seed for the gait search (the
+    robot's own gaits hold each angle for a step; the waveform is smooth), not a copy of the schedule."""
+    steps = np.clip(np.asarray(steps_deg, dtype=float), 0.0, top)
+    n = steps.shape[0]
+    lo, hi = steps.min(axis=0), steps.max(axis=0)
+    centres = (np.arange(n) + 0.5) / n  # each step's middle, cycles
+    phase = np.zeros(steps.shape[1])
+    for leg in range(steps.shape[1]):
+        if hi[leg] - lo[leg] < 1e-9:
+            continue
+        high = steps[:, leg] > 0.5 * (lo[leg] + hi[leg])
+        angle = np.angle(np.exp(2j * np.pi * centres[high]).sum()) / (2.0 * np.pi)  # circular mean, cycles
+        phase[leg] = -angle  # w(psi + phase) peaks at psi = -phase
+    phase -= phase[0]
+    return Primitive(name, lo, hi - lo, phase)
+
+
 def interpolate(a: Primitive, b: Primitive, lam: float) -> Primitive:
     """The primitive a fraction ``lam`` of the way from ``a`` to ``b`` in its parameters: bases and
     amplitudes linearly, each leg's phase along the shorter arc of the cycle. Unlike a mix of the
