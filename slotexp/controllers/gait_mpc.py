@@ -23,9 +23,9 @@ asks for is used where the legs can give it:
   direction of travel (:mod:`slotexp.locomotion.heading`: feet sliding across their
   legs' planes brake the body by mu N each, so the loaded side turns it). The lean's
   sign follows from the friction law; everything that mixed gaits to turn steered
-  the corrected plant erratically. Measured (default model): the 20 mm/s walk, the
-  15 mm/s lateral walk and the backward walk hold their heading within 1.4 deg over
-  30 s (13.7 deg and 1.8 deg before, lateral and walk).
+  the corrected plant erratically. Measured (default model, 30 s): the 20 mm/s walk,
+  the 15 mm/s lateral walk and the backward walk hold their heading within 1.5 deg
+  (13.7 and 1.8 deg before, lateral and walk).
 - **Normal forces.** Each leg's tendon is offset from the gait by
   ``(f_z - m g / 4) / a`` with ``a`` the force-to-tendon map's slope (eq. 11,
   fitted to the leg by ``experiment=calibrate``; ``experiment=legmap`` gives the
@@ -56,6 +56,9 @@ asks for is used where the legs can give it:
   heading loop's lean (it is projected off that pattern): the two integrators
   would wind up against each other (measured: with both on full, the 15 mm/s walk's
   heading error swung +-2 deg and Table I's Baseline ended at 24 % of its maximum).
+  Its rate, 0.2/s: at 0.5/s a sideways push while walking left the robot 16 mm off
+  its line for good (0.2/s: back within 2 mm by 15 s), and at 0.1/s Table I's Baseline
+  ends at 0.96 % of its maximum, against 0.80 % at 0.2/s.
   Standing it also holds the stance's height (every leg alike); walking, the gait
   keeps the posture it was searched at (holding the height made the 20 mm/s walk
   fall 21 mm behind in 25 s). Before the heading loop it was off: the levelled
