@@ -44,7 +44,7 @@ FITTED_WIDE = (
 )
 HELD_OUT = (
     "experiment.schedules=[walk_30,walk_60,walk_120,walk_135,walk_150,walk_210,walk_225,walk_240,walk_300,"
-    "walk_315,walk_330,turn_right,turn_left]"
+    "walk_315,walk_330,turn_right,turn_left,forward_collector,forward_autopilot]"
 )
 # Models across the ranges identification reported (friction 0.1-0.8, E 7e6-2e7 Pa, damping 5-50 /s), for the
 # controller's robustness: the same settings and library on each. (The horn zero, 90-130 deg, maps horn angles to

@@ -174,8 +174,10 @@ class ServoConfig:
     # direction (horn - zero), the horn kept within [min, max]. Simulation and `slot hardware` share it.
     horn_zero_deg: list[float] = vec_field([130.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
     horn_direction: list[int] = vec_field([1, 1, 1, 1], length=4, lo=-1, hi=1, unit="")
-    horn_min_deg: list[float] = vec_field([105.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
-    horn_max_deg: list[float] = vec_field([255.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
+    # the robot's own limits: its gait code clamps every horn angle to 10-350 deg (SLOT-Offline-RL,
+    # dynamixel_gui.py and the RL scripts: max(10, min(350, ang))); its data collector commands 85 and 320
+    horn_min_deg: list[float] = vec_field([10.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
+    horn_max_deg: list[float] = vec_field([350.0] * 4, length=4, lo=0.0, hi=360.0, unit="deg")
 
 
 @dataclass

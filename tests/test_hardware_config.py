@@ -43,7 +43,7 @@ def test_hardware_config_composes_with_the_simulation_settings() -> None:
         ("robot.servo.horn_direction=[1,0,1,1]", ["hardware.direction[1]"]),
         ("hardware.zero_offset_deg=[96,96,96,96]", ["hardware.zero_offset_deg", "robot.servo.horn_zero_deg"]),
         ("hardware.baudrate=12345", ["hardware.baudrate", "1000000"]),
-        ("robot.servo.horn_min_deg=[130,260,130,130]", ["min_position_deg[1]"]),
+        ("robot.servo.horn_min_deg=[130,355,130,130]", ["min_position_deg[1]"]),
         ("robot.servo.horn_max_deg=[250,250,250,400]", ["horn_max_deg[3]"]),
         ("odometry=replay", ["odometry.path"]),
         ("odometry.endpoint=localhost:5556", ["odometry.endpoint"]),
@@ -98,16 +98,16 @@ def test_tendon_to_servo_mapping_is_the_documented_formula() -> None:
 def test_every_command_is_clamped_to_the_servo_limits() -> None:
     cfg = load_hardware("robot.servo.horn_max_deg=[200,255,255,255]")
     smap = ServoMap.from_config(cfg.hardware, cfg.robot.leg.tendon_max_deg)
-    ticks, clamped = smap.to_ticks(np.array([100.0, 150.0, -30.0, np.nan]))
+    ticks, clamped = smap.to_ticks(np.array([100.0, 150.0, -130.0, np.nan]))
     assert ticks[0] == round(200 * 4096 / 360) and clamped[0]  # servo limit
     assert ticks[1] == round(255 * 4096 / 360) and clamped[1]  # the horn's upper limit
-    assert ticks[2] == round(105 * 4096 / 360) and clamped[2]  # slack below the zero, down to the lower limit
+    assert ticks[2] == round(10 * 4096 / 360) and clamped[2]  # slack below the zero, down to the lower limit
     assert ticks[3] == round(130 * 4096 / 360) and clamped[3]  # a NaN never reaches the servo: the zero
     slack, _ = smap.to_ticks(np.array([-25.0, 0.0, 0.0, 0.0]))
     assert slack[0] == round(105 * 4096 / 360)  # the robot's own "step height" horn angle, 25 deg below the zero
     lo, hi = smap.tendon_range_deg()
     assert hi[0] == pytest.approx(70.0, abs=0.1) and hi[1] == pytest.approx(125.0, abs=0.1)
-    assert lo[0] == pytest.approx(-25.0, abs=0.1)
+    assert lo[0] == pytest.approx(-120.0, abs=0.1)
 
 
 # --------------------------------------------------------------------------- odometry

@@ -38,7 +38,7 @@ def test_the_shipped_schedules_are_the_robots_gaits_and_only_those_in_shared_dat
     names = set(p.stem for p in (CONF / "schedule").glob("*.yaml"))
     visible = {"forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"}
     assert names == set(cfg.schedules) and {n for n in names if not cfg.schedules[n].heldout} == visible
-    assert len(names - visible) == 13  # eleven headings and two turns
+    assert len(names - visible) == 15  # eleven headings, two turns and the forward gait's other two variants
     for name in names - visible:
         s = cfg.schedules[name]
         assert (s.heading_deg is None) == (s.turn is not None) and s.robot_distance_per_cycle_m is None
@@ -58,7 +58,8 @@ def test_horn_angles_become_tendon_angles_through_the_one_horn_map():
     # horn 105 ("step height") is 25 deg below the zero, 130: slack; 210 ("standing height") winds 80 deg
     np.testing.assert_allclose(tendon, [[-25.0, 80.0, 80.0, 80.0], [80.0, 80.0, 80.0, -25.0]])
     np.testing.assert_allclose(horn.horn_deg(tendon), [[105.0, 210.0, 210.0, 210.0], [210.0, 210.0, 210.0, 105.0]])
-    assert horn.tendon_deg(np.array([90.0, 300.0, 130.0, 130.0]))[0:2].tolist() == [-25.0, 125.0]  # held in limits
+    # held within the robot's own limits, 10-350 deg (its gait code clamps there)
+    assert horn.tendon_deg(np.array([5.0, 355.0, 130.0, 130.0]))[0:2].tolist() == [-120.0, 220.0]
     # a step held 0.42 s: step 1 from 0.42 s to 0.84 s, then the cycle again
     schedule = cfg.schedules["forward"]
     assert [step_index(schedule, t) for t in (0.0, 0.41, 0.42, 0.83, 0.84, 1.3)] == [0, 0, 1, 1, 0, 1]
@@ -130,3 +131,22 @@ def test_schedules_played_in_a_batch_follow_the_closed_loop_schedule_runs(tmp_pa
         np.testing.assert_allclose(run.x[:, 6:], xs[b, : len(run.t), 6:], rtol=0, atol=1e-4)  # rates: m/s, rad/s
         assert len(run.t) >= len(t) - 1
     assert np.abs(xs[0, -1, 3:5] - xs[0, 0, 3:5]).max() > 1e-5  # the robots moved: the comparison is not vacuous
+
+
+def test_foot_strokes_measure_each_feet_travel_and_the_distance_they_would_give_gripped_whole() -> None:
+    """Feet moving sinusoidally along legs at 45 deg + k 90 deg: each stroke is its peak-to-peak, and the ceiling
+    along 0 deg the strokes' sum times cos 45 deg (each leg's stroke used once a cycle); a leg along the heading
+    counts whole and one across it not at all."""
+    from slotexp.locomotion.schedules import foot_strokes
+
+    cycle, n = 0.84, 84
+    t = np.arange(8 * n + 1) * (cycle / n)
+    amplitude = np.array([0.012, 0.008, 0.0, 0.004])  # m, peak to peak
+    reach = 0.2 + 0.5 * amplitude * np.sin(2 * np.pi * t / cycle)[:, None]
+    leg_yaw = np.radians([45.0, 135.0, 225.0, 315.0])
+    out = foot_strokes(t, reach, cycle, 3.0, leg_yaw, 0.0)
+    np.testing.assert_allclose([out[f"stroke_{i}_mm"] for i in range(4)], amplitude * 1e3, atol=1e-9)
+    assert out["stroke_max_mm"] == pytest.approx(12.0)
+    assert out["stroke_ceiling_mm"] == pytest.approx(24.0 * np.cos(np.radians(45.0)))
+    along = foot_strokes(t, reach, cycle, 3.0, leg_yaw, 45.0)  # FL along the travel, RL and FR across it
+    assert along["stroke_ceiling_mm"] == pytest.approx(12.0 + 0.0 * 8.0 + 0.0 * 4.0, abs=1e-9)

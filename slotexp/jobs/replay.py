@@ -6,9 +6,11 @@ as on the robot) for ``experiment.duration`` and logged to ``logs/<schedule>.mca
 From the logs alone: per gait the distance per cycle, speed, heading in our convention
 (counter-clockwise from forward, the robot starting at zero yaw) and the robot's compass
 (clockwise from forward), yaw rate and heave, each over the whole cycles after
-``experiment.measure_from_s``, beside the robot's heading and distance (``replay.csv``,
-``replay.md``, ``metrics.json``); ``fig_replay.png`` (headings on a compass, distances
-per cycle) and a GIF per gait. A Hydra multirun over model options compares them.
+``experiment.measure_from_s``; each foot's stroke along its leg, the stroke ceiling and
+the grip efficiency (which of the two limits on distance the gait meets on the model),
+beside the robot's heading and distance (``replay.csv``, ``replay.md``,
+``metrics.json``); ``fig_replay.png`` (headings on a compass, distances per cycle) and a
+GIF per gait. A Hydra multirun over model options compares them.
 """
 
 from __future__ import annotations
@@ -17,12 +19,13 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from ..atomic import write_csv, write_json, write_text
 from ..config import ConfigError, ScheduleConfig, SlotConfig, check_run_length, check_schedule_ticks, num_field
 from ..controllers.schedule import ScheduleControllerConfig
-from ..locomotion.schedules import cycle_s, gait_metrics, with_profile_velocity, wrap_deg
+from ..locomotion.schedules import cycle_s, foot_strokes, gait_metrics, with_profile_velocity, wrap_deg
 from ..runlog import find_logs, load_run
 from . import EXPERIMENTS, Experiment
 from ._logged import git_commit, run_logged
@@ -123,6 +126,17 @@ def report(out_dir: Path, cfg: SlotConfig) -> pd.DataFrame:
         schedule = cfg.schedules[name]
         run = load_run(logs[name])
         row = {"gait": name, **gait_metrics(run.t, run.x, cycle_s(schedule), exp.measure_from_s)}
+        row.update(
+            foot_strokes(
+                run.t,
+                feet_reach(run, list(cfg.robot.leg.names)),
+                cycle_s(schedule),
+                exp.measure_from_s,
+                np.radians(cfg.robot.leg.yaw_deg),
+                row["heading_deg"],
+            )
+        )
+        row["grip_efficiency"] = row["distance_per_cycle_mm"] / row["stroke_ceiling_mm"]
         row["robot_compass_deg"] = schedule.heading_deg
         row["robot_turn"] = schedule.turn or ""  # a turning gait's spin on the robot (cw, ccw)
         row["robot_distance_per_cycle_mm"] = (
@@ -147,11 +161,24 @@ def report(out_dir: Path, cfg: SlotConfig) -> pd.DataFrame:
     return table
 
 
+def feet_reach(run, legs: list[str]) -> np.ndarray:
+    """Each foot's horizontal distance from its leg's root (n, 4), m, from the log's markers: how far out along
+    its leg it is (the legs move in their vertical planes)."""
+    m = run.markers
+    out = np.empty((len(m), len(legs)))
+    for i, leg in enumerate(legs):
+        foot = m[[f"{leg}_foot.0", f"{leg}_foot.1"]].to_numpy(float)
+        root = m[[f"{leg}_n0.0", f"{leg}_n0.1"]].to_numpy(float)
+        out[:, i] = np.hypot(*(foot - root).T)
+    return out
+
+
 def replay_markdown(table: pd.DataFrame) -> str:
     """The replay beside the robot, one row per gait."""
     head = (
         "| gait | robot: compass heading | ours: compass heading (error) | ours: heading, CCW | distance per cycle "
-        "(mm): ours / robot | speed (mm/s) | yaw rate (deg/s) | heave (mm) |\n|---|---|---|---|---|---|---|---|\n"
+        "(mm): ours / robot | speed (mm/s) | yaw rate (deg/s) | heave (mm) | largest foot stroke (mm) "
+        "| stroke ceiling (mm per cycle) | grip efficiency |\n|---|---|---|---|---|---|---|---|---|---|---|\n"
     )
     lines = []
     for _, r in table.iterrows():
@@ -165,7 +192,8 @@ def replay_markdown(table: pd.DataFrame) -> str:
         lines.append(
             f"| {r['gait']} | {robot} | {error}{round(r['compass_deg']) % 360}°{heading_error} "
             f"| {r['heading_deg']:+.0f}° | {r['distance_per_cycle_mm']:.1f} / {robot_d} | {r['speed_mm_s']:.1f} "
-            f"| {r['yaw_rate_deg_s']:+.2f} | {r['heave_mm']:.1f} |"
+            f"| {r['yaw_rate_deg_s']:+.2f} | {r['heave_mm']:.1f} | {r['stroke_max_mm']:.1f} "
+            f"| {r['stroke_ceiling_mm']:.1f} | {r['grip_efficiency']:.2f} |"
         )
     return head + "\n".join(lines) + "\n"
 

@@ -20,6 +20,7 @@ from ..plants import nominal_state
 from ..plants.cosserat import CosseratBatch, CosseratPlant
 from ..robot import build_robot
 from ..soft.servo import HornMap
+from .openloop import stroke_ceiling, strokes
 
 
 def schedule_tendon_deg(schedule: ScheduleConfig, legs: list[str], horn: HornMap) -> np.ndarray:
@@ -91,6 +92,25 @@ def gait_metrics(t: np.ndarray, x: np.ndarray, cycle: float, measure_from_s: flo
         "yaw_rate_deg_s": float(np.degrees(yaw[i1] - yaw[i0]) / span),
         "heave_mm": float(np.ptp(x[i0 : i1 + 1, 5]) * 1e3),
         "height_mm": float(np.mean(x[i0 : i1 + 1, 5]) * 1e3),
+    }
+
+
+def foot_strokes(
+    t: np.ndarray, reach: np.ndarray, cycle: float, measure_from_s: float, leg_yaw: np.ndarray, heading_deg: float
+) -> dict:
+    """Each foot's stroke along its leg over the whole cycles after ``measure_from_s`` (the peak-to-peak of its
+    reach ``reach`` (n, 4), m, within each cycle, averaged), the stroke ceiling (how far per cycle the body would
+    go along ``heading_deg`` if every stroke were gripped whole, :func:`slotexp.locomotion.openloop.stroke_ceiling`)
+    and the grip efficiency (distance over ceiling): which of the two limits a gait meets on the model."""
+    first = math.ceil(measure_from_s / cycle - 1e-9)
+    i0 = int(np.argmin(np.abs(t - t[0] - first * cycle)))
+    steps = max(1, int(round(cycle / float(np.median(np.diff(t))))))
+    stroke = strokes(reach, i0, steps)
+    ceiling = stroke_ceiling(stroke, leg_yaw, heading_deg, 1.0) * 1e3  # per cycle: a frequency of one
+    return {
+        **{f"stroke_{i}_mm": float(v * 1e3) for i, v in enumerate(stroke)},
+        "stroke_max_mm": float(np.max(stroke) * 1e3),
+        "stroke_ceiling_mm": float(ceiling),
     }
 
 
