@@ -146,7 +146,13 @@ class ContactConfig:
 
 @dataclass
 class TendonConfig:
-    """The tendon: a cable at an offset below the leg's centreline over its proximal part."""
+    """The tendon: a cable from the servo's pulley to its anchor on the leg, ``routed_fraction`` of the way down.
+
+    ``routing``: ``offset``, the cable runs along the leg at ``offset`` below its centreline over the proximal
+    part (guides all along it: a distributed bending moment); ``bowstring``, it runs straight from a guide on the
+    torso, ``guide`` (m, from the leg's root: along the root's tangent, outward positive, and its normal, up
+    positive), to the anchor at ``offset`` below the centreline (slotexp/soft/loads.py).
+    """
 
     offset: float = num_field(0.010, lo=0.0, lo_open=True, unit="m")
     routed_fraction: float = num_field(2.0 / 3.0, lo=0.0, lo_open=True, hi=1.0, unit="")
@@ -155,6 +161,10 @@ class TendonConfig:
     # a second cable at the same offset above the centreline on the same pulley (a cable loop): the servo lets
     # it out as it winds the first in, and below its zero it pulls the leg up (slotexp.soft.loads.tendon_cable)
     antagonist: bool = False
+    routing: str = choice_field("offset", "offset", "bowstring")
+    # below the root: a guide above it makes the cable lift the legs, and the robot lies on its belly (measured:
+    # 16.9 mm high with the guide 11 mm above, 28 mm with it 12 mm below); where the robot's is, its files do not say
+    guide: list[float] = vec_field([0.0, -0.012], length=2, lo=-0.2, hi=0.2, unit="m")
 
 
 @dataclass

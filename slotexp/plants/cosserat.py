@@ -97,6 +97,11 @@ class CosseratPlant:
                 "robot.leg.model=paper has no Jacobian for the implicit step: add plant.integrator=symplectic "
                 "sim.dt=2e-5"
             )
+        tendon = cfg.robot.tendon
+        if tendon.routing == "bowstring" and tendon.antagonist:
+            raise ConfigError(
+                "robot.tendon.antagonist is a cable pair along the leg (robot.tendon.routing=offset): drop one"
+            )
 
     @classmethod
     def from_config(cls, cfg: SlotConfig, robot: RobotModel, x0: np.ndarray) -> CosseratPlant:

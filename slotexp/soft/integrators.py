@@ -85,11 +85,11 @@ def _set_root(pos, vel, root):
 
 
 @njit(cache=True)
-def _finish_step(pos, tension, offset, total_n, total_f, out):
+def _finish_step(pos, tension, pair_upper, total_n, total_f, out):
     """Report the step's tension (and which cable pulls) and contact totals; flag a blown-up state
     (non-finite, or the tip 100 m away) so the caller can stop with the step and the stability limit named."""
     out[O_T] = tension
-    out[O_TS] = 0.0 if tension <= 0.0 else (1.0 if offset > 0.0 else -1.0)
+    out[O_TS] = 0.0 if tension <= 0.0 else (-1.0 if pair_upper else 1.0)
     out[O_N] = total_n
     out[O_F] = total_f
     tip = pos[pos.shape[0] - 1]
@@ -250,7 +250,7 @@ def symplectic_once(state, leg, inv_mass, inv_inertia, par, free_length, root, v
     out[O_FZ] += c * rz
     out[O_M] += c * rm
     rotate_directors(cth, sth, theta, omega, h)
-    _finish_step(pos, tension, offset, total_n, total_f, out)
+    _finish_step(pos, tension, offset < 0.0 and par[P_TPAIR] > 0.0, total_n, total_f, out)
 
 
 @njit(cache=True)
@@ -327,7 +327,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     root_reaction(force, m_root, mass, par, out)
     taut = tension > 0.0 and tension < par[P_TMAX]
     cable = 0.0 if tension <= 0.0 else (1.0 if taut else 2.0)  # slack, taut, at the servo's stall
-    if offset < 0.0:
+    if offset < 0.0 and par[P_TPAIR] > 0.0:
         cable = -cable  # the pair's upper cable
     i_cable, i_age, i_gz, i_step = n + J_CABLE, n + J_AGE, n + J_GZ, n + J_STEP
     fresh = jmeta[i_age] >= max_age or jmeta[i_step] != h or jmeta[i_cable] != cable
@@ -366,7 +366,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, kband, h2)
         g[:] = 0.0
         if tension > 0.0:
-            tendon_jacobian(pos, cth, sth, tension, offset, par, h2, kband, g)
+            tendon_jacobian(pos, cth, sth, root[4], tension, offset, par, h2, kband, g)
         for i in range(1, n):
             regime = 0
             if ground and pos[i, 1] < 0.0:
@@ -467,7 +467,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     out[O_FX] += damp_x
     out[O_FZ] += damp_z
     out[O_M] += damp_m
-    _finish_step(pos, tension, offset, total_n, total_f, out)
+    _finish_step(pos, tension, offset < 0.0 and par[P_TPAIR] > 0.0, total_n, total_f, out)
 
 
 def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:

@@ -25,6 +25,12 @@
   offset above the centreline on the same pulley, so the servo lets it out as it
   winds the first in: its free length is ``P_TPAIR - free_length``, and when the lower
   cable is slack it pulls the leg up (:func:`tendon_cable`);
+- or the tendon as a bowstring (``robot.tendon.routing``, ``par[P_TROUTE]`` = 1): a straight
+  cable from a guide G fixed to the torso (``par[P_TGX]``, ``par[P_TGZ]``: its place relative
+  to the root node in the root's frame) to its anchor A on the leg, node na at ``offset``
+  below the centreline. L = |A - G|; the tension pulls the anchor towards the guide and the
+  guide (the torso, through the root node) towards the anchor, -T grad L on both, so the
+  cable is reacted where it bears on each (:func:`bowstring`);
 - an optional static tip force and moment (for the leg experiment).
 
 The force and moment the leg exerts on its root (node 0, which belongs to the
@@ -52,11 +58,14 @@ from .params import (
     P_PAPER,
     P_TFX,
     P_TFZ,
+    P_TGX,
+    P_TGZ,
     P_TK,
     P_TM,
     P_TMAX,
     P_TOFF,
     P_TPAIR,
+    P_TROUTE,
     P_VEPS,
     P_VS,
 )
@@ -76,10 +85,36 @@ def routed_geometry(pos, theta, cth, sth, theta_root, par):
 
 
 @njit(cache=True)
+def bowstring(pos, cth, sth, theta_root, par):
+    """The bowstring's anchor-to-guide geometry: (L, u_x, u_z, r_x, r_z, c, s) with L = |A - G|, u the unit
+    vector from the guide to the anchor, r the guide's lever from the root node, (c, s) the anchor element's
+    director. A = pos[na] + d (s, -c) (d below the centreline), G = pos[0] + R(theta_root) (g_x, g_z)."""
+    na = int(par[P_NA])
+    c = cth[na - 1]
+    s = sth[na - 1]
+    d = par[P_TOFF]
+    ax = pos[na, 0] + d * s
+    az = pos[na, 1] - d * c
+    cr = np.cos(theta_root)
+    sr = np.sin(theta_root)
+    rx = cr * par[P_TGX] - sr * par[P_TGZ]
+    rz = sr * par[P_TGX] + cr * par[P_TGZ]
+    dx = ax - (pos[0, 0] + rx)
+    dz = az - (pos[0, 1] + rz)
+    length = np.sqrt(dx * dx + dz * dz)
+    return length, dx / length, dz / length, rx, rz, c, s
+
+
+@njit(cache=True)
 def tendon_cable(pos, theta, cth, sth, theta_root, par, free_length):
     """(tension, offset) of the cable that pulls: the one below the centreline (offset ``par[P_TOFF]``);
     with a pair, the one above (offset ``-par[P_TOFF]``, free length ``P_TPAIR - free_length``) when the
-    lower one is slack. The two cannot both be taut but through the routed part's axial strain."""
+    lower one is slack. The two cannot both be taut but through the routed part's axial strain. The second
+    value is the cable's lever about the root, which is its offset for a cable along the leg: a bowstring
+    (``par[P_TROUTE]``) returns (its tension, the lever r x u of its pull on the guide about the root)."""
+    if par[P_TROUTE] > 0.5:
+        length, ux, uz, rx, rz, _, _ = bowstring(pos, cth, sth, theta_root, par)
+        return tendon_tension(length, free_length, par), rx * uz - rz * ux
     length, turn = routed_geometry(pos, theta, cth, sth, theta_root, par)
     offset = par[P_TOFF]
     tension = tendon_tension(length + offset * turn, free_length, par)
@@ -103,6 +138,8 @@ def tendon_length(pos, theta, theta_root, par, side=1.0) -> float:
     cth = np.empty(theta.shape[0])
     sth = np.empty(theta.shape[0])
     directors(theta, cth, sth)
+    if par[P_TROUTE] > 0.5:
+        return bowstring(pos, cth, sth, theta_root, par)[0]
     length, turn = routed_geometry(pos, theta, cth, sth, theta_root, par)
     return length + side * par[P_TOFF] * turn
 
@@ -122,9 +159,18 @@ def tendon_tension(length, free_length, par) -> float:
 
 
 @njit(cache=True)
-def add_tendon(pos, cth, sth, tension, offset, par, force, moment):
-    """-T grad L into force/moment, for the cable at ``offset`` (:func:`tendon_cable`)."""
+def add_tendon(pos, cth, sth, theta_root, tension, offset, par, force, moment) -> float:
+    """-T grad L into force/moment, for the cable whose lever about the root is ``offset`` (:func:`tendon_cable`);
+    returns the moment the cable puts on the root (the torso) beside the force it adds to the root node."""
     na = int(par[P_NA])
+    if par[P_TROUTE] > 0.5:
+        _, ux, uz, _, _, c, s = bowstring(pos, cth, sth, theta_root, par)
+        force[na, 0] -= tension * ux  # the anchor is pulled towards the guide ...
+        force[na, 1] -= tension * uz
+        moment[na - 1] -= tension * par[P_TOFF] * (ux * c + uz * s)
+        force[0, 0] += tension * ux  # ... and the guide, on the torso, towards the anchor
+        force[0, 1] += tension * uz
+        return tension * offset
     for e in range(na):
         c = cth[e]
         s = sth[e]
@@ -135,16 +181,31 @@ def add_tendon(pos, cth, sth, tension, offset, par, force, moment):
         _, _, _, b = element_kinematics(pos, e, c, s)
         moment[e] -= tension * b
     moment[na - 1] -= tension * offset
+    return tension * offset  # the cable leaves the root at the offset
 
 
 @njit(cache=True)
-def tendon_jacobian(pos, cth, sth, tension, offset, par, scale, band, grad_l):
+def tendon_jacobian(pos, cth, sth, theta_root, tension, offset, par, scale, band, grad_l):
     """Add grad L into ``grad_l`` and ``scale`` * T * hess L into ``band`` (the implicit step's layout).
 
     The tendon's stiffness is T hess L + k_t grad L grad L^T: the first part is banded,
-    the second rank-one (the implicit step handles it by Sherman-Morrison).
+    the second rank-one (the implicit step handles it by Sherman-Morrison). A bowstring's L depends on the
+    anchor's three coordinates (node na's x, z and the anchor element's angle) and on the root's.
     """
     na = int(par[P_NA])
+    if par[P_TROUTE] > 0.5:
+        # grad L: the anchor's x, z and angle, and the root node's x, z (the guide moves with it). The bowstring's
+        # geometric stiffness T hess L is left explicit: it couples the anchor with the root, outside the band,
+        # and the torso's share must match the anchor's exactly; it is T / L (under 1e3 N/m at the servo's
+        # stall), explicitly stable on the anchor node's mass up to steps of about 2 ms.
+        _, ux, uz, _, _, c, s = bowstring(pos, cth, sth, theta_root, par)
+        d = par[P_TOFF]
+        grad_l[3 * na] += ux
+        grad_l[3 * na + 1] += uz
+        grad_l[3 * (na - 1) + 2] += d * (ux * c + uz * s)
+        grad_l[0] -= ux
+        grad_l[1] -= uz
+        return
     for e in range(na):
         ce = cth[e]
         se = sth[e]
@@ -203,8 +264,7 @@ def conservative_forces(
         m_root = elastic_forces_cs(pos, theta, cth, sth, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment)
     tension, offset = tendon_cable(pos, theta, cth, sth, theta_root, par, free_length)
     if tension > 0.0:
-        add_tendon(pos, cth, sth, tension, offset, par, force, moment)
-        m_root += tension * offset  # the cable leaves the root at the offset
+        m_root += add_tendon(pos, cth, sth, theta_root, tension, offset, par, force, moment)
     n = pos.shape[0]
     for i in range(n):
         force[i, 1] -= mass[i] * par[P_G]

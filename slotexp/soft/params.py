@@ -45,11 +45,17 @@ PAR = (
     "mu_static",
     "v_stribeck",
     "tendon_pair",
+    "tendon_route",
+    "tendon_guide_x",
+    "tendon_guide_z",
 )
 (P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFX, P_TFZ, P_TM, P_NA, P_PAPER, P_KR) = range(16)
 P_MUS, P_VS = 16, 17  # the feet's friction at rest and the speed over which it falls to mu (robot.contact)
 # robot.tendon.antagonist: the two cables' free lengths summed (constant as the servo turns); 0: one cable
 P_TPAIR = 18
+# robot.tendon.routing: 0 the cable along the leg at its offset, 1 a bowstring from a guide on the torso to the anchor;
+# the guide's position relative to the root node in the root's frame (m: along the root's tangent, and its normal up)
+P_TROUTE, P_TGX, P_TGZ = 19, 20, 21
 # friction: along the leg's plane (the leg's own step); friction_lateral: across it (the coupled plant's torso step)
 # tendon_side: which cable pulls (1: below the centreline, -1: above it, robot.tendon.antagonist; 0: neither)
 OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged", "friction_lateral", "tendon_side")
@@ -99,4 +105,7 @@ def leg_params(
         k_restore=leg.restoring_stiffness,
         mu_static=0.0 if contact.static_friction is None else contact.static_friction,  # 0: plain Coulomb
         v_stribeck=contact.stribeck_velocity,
+        tendon_route=1.0 if tendon.routing == "bowstring" else 0.0,
+        tendon_guide_x=tendon.guide[0],
+        tendon_guide_z=tendon.guide[1],
     )
