@@ -355,6 +355,19 @@ RUNS = {
             "static_friction0.15": "robot.contact.static_friction=0.15",
         }.items()
     },
+    # The tendon as a bowstring from a guide on the torso to its anchor on the leg's underside (half the leg's
+    # thickness below the centreline, 2/3 down): the guide below the root (the default), and 11 mm above it
+    **{
+        f"replay_bowstring{tag}": [
+            "experiment=replay",
+            "plant=cosserat",
+            "robot.tendon.routing=bowstring",
+            "robot.tendon.offset=0.0034",
+            *extra,
+            "experiment.gif=false",
+        ]
+        for tag, extra in (("", []), ("_guide_above", ["robot.tendon.guide=[0,0.011]"]))
+    },
     # ... and on the fit held to the paper's walking height (identify_robot_height40), off and on
     **{
         f"replay_height40_fit{tag}": [
