@@ -13,6 +13,7 @@ from slotexp.soft.integrators import LegSim
 from slotexp.soft.loads import add_tendon, tendon_cable, tendon_jacobian, tendon_length
 from slotexp.soft.params import O_T, P_TMAX, make_par
 from slotexp.soft.rod import build_leg, directors, model_from_shape
+from tests.test_leg import _flat, _unflat
 
 L, W, H, E, RHO = 0.19, 0.02, 0.005, 1.0e7, 1200.0
 EI = E * W * H**3 / 12
@@ -29,16 +30,6 @@ def _bowstring_par(guide=(0.0, 0.011), offset=0.004, **kw) -> np.ndarray:
         tendon_guide_z=guide[1],
         **kw,
     )
-
-
-def _flat(pos, th):
-    q = np.zeros(3 * len(pos) - 1)
-    q[0::3], q[1::3], q[2::3] = pos[:, 0], pos[:, 1], th
-    return q
-
-
-def _unflat(q):
-    return np.column_stack([q[0::3], q[1::3]]), q[2::3].copy()
 
 
 @pytest.mark.parametrize("guide", [(0.0, 0.011), (0.005, -0.008)], ids=["above", "below"])
