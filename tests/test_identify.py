@@ -181,3 +181,25 @@ def test_an_initial_design_is_evaluated_first_and_the_search_starts_from_its_bes
     best = first.loc[first["cost"].idxmin()]
     assert candidates.iloc[6]["robot.servo.horn_zero_deg"] == pytest.approx(best["robot.servo.horn_zero_deg"], rel=1e-5)
     assert len(candidates) == 6 + 1 + 4 + 8  # the design with the start, the search's start, 4, the scan of 8
+
+
+def test_a_robust_fit_costs_each_candidate_its_worst_run_under_the_perturbations(tmp_path: Path):
+    """experiment.robust: every candidate also runs with the friction 10 % lower and higher; its cost is the worst
+    of the three, each perturbed run is the candidate's own model with just that setting moved."""
+    from slotexp.jobs.identify import candidate_config, perturbed
+
+    args = (*SMALL, "experiment.max_evals=4", "experiment.slice_points=2", "experiment.parallel.workers=1")
+    cfg = load(*args, "experiment.robust.parameters=[robot.contact.friction]")
+    model = candidate_config(cfg, cfg.experiment.parameters, np.array([115.0]))
+    runs = perturbed(cfg, model)
+    assert [m.robot.contact.friction for m in runs] == pytest.approx([0.1, 0.09, 0.11])
+    assert all(m.robot.servo.horn_zero_deg == [115.0] * 4 for m in runs)
+    run(cfg, tmp_path, "{}")
+    candidates = pd.read_csv(tmp_path / "candidates.csv")
+    each = candidates[["cost_own", "cost_perturbed.0", "cost_perturbed.1"]].to_numpy(float)
+    np.testing.assert_allclose(candidates["cost"], each.max(axis=1))
+    assert (candidates["cost"] > candidates["cost_own"]).any()  # a perturbation costs something somewhere
+    plain = load(*args)
+    assert perturbed(plain, model) == [model]  # no robust parameters: the candidate alone
+    with pytest.raises(ConfigError, match="robust.parameters: robot.leg.names is not a numeric setting"):
+        load(*args, "experiment.robust.parameters=[robot.leg.names]")
