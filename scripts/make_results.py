@@ -42,6 +42,18 @@ FITTED_WIDE = (
     "{path: robot.leg.youngs_modulus, lo: 4.0e6, hi: 4.0e7, log: true},"
     "{path: robot.leg.damping_per_s, lo: 2.0, hi: 80.0, log: true}]"
 )
+# ... and the tendon's geometry, with ranges from the robot's files (results/README.md, "The tendon's geometry"):
+# the pulley's radius from the CAD's 18 mm circle (9 mm) to the newer model's 1.4 N m over 114 N (12.3 mm); the
+# cable along the leg from its underside at the root (6.75 mm) to 12 mm below the centreline, or a bowstring's
+# guide from the leg's underside at the root (7 mm below) to 20 mm below
+_GEOMETRY = {
+    "offset": "{path: robot.tendon.offset, lo: 0.00675, hi: 0.012}",
+    "bowstring": "{path: robot.tendon.guide_height, lo: -0.020, hi: -0.007}",
+}
+FITTED_GEOMETRY = {
+    routing: FITTED[:-1] + ",{path: robot.leg.pulley_radius, lo: 0.009, hi: 0.0123}," + extra + "]"
+    for routing, extra in _GEOMETRY.items()
+}
 HELD_OUT = (
     "experiment.schedules=[walk_30,walk_60,walk_120,walk_135,walk_150,walk_210,walk_225,walk_240,walk_300,"
     "walk_315,walk_330,turn_right,turn_left,forward_collector,forward_autopilot]"
@@ -366,7 +378,7 @@ RUNS = {
             *extra,
             "experiment.gif=false",
         ]
-        for tag, extra in (("", []), ("_guide_above", ["robot.tendon.guide=[0,0.011]"]))
+        for tag, extra in (("", []), ("_guide_above", ["robot.tendon.guide_height=0.011"]))
     },
     # ... and on the fit held to the paper's walking height (identify_robot_height40), off and on
     **{
@@ -385,6 +397,20 @@ RUNS = {
     # The fit of the uncertain settings to the robot's visible gaits (shared/data), and the check that the same
     # fit recovers known values from the model's own noisy observations (tables and tracks of every gait).
     "identify_robot": ["experiment=identify", "plant=cosserat", FITTED, "experiment.max_evals=96"],
+    # Robust fits (the worst cost under E and friction 10 % either way), with the tendon's uncertain geometry:
+    # along the leg (its offset) or a bowstring (its guide's height), the pulley's radius in both
+    **{
+        f"identify_robot_robust_{routing}": [
+            "experiment=identify",
+            "plant=cosserat",
+            f"robot.tendon.routing={routing}",
+            *(["robot.tendon.offset=0.0034"] if routing == "bowstring" else []),
+            FITTED_GEOMETRY[routing],
+            "experiment.robust.parameters=[robot.leg.youngs_modulus,robot.contact.friction]",
+            "experiment.max_evals=96",
+        ]
+        for routing in ("offset", "bowstring")
+    },
     # ... with the torso held to the paper's walking height (p_z* = 0.04 m, sigma 10 mm): the unconstrained fit
     # matches the distances standing 2.2x taller (results/README.md)
     "identify_robot_height40": [

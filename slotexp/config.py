@@ -150,8 +150,8 @@ class TendonConfig:
 
     ``routing``: ``offset``, the cable runs along the leg at ``offset`` below its centreline over the proximal
     part (guides all along it: a distributed bending moment); ``bowstring``, it runs straight from a guide on the
-    torso, ``guide`` (m, from the leg's root: along the root's tangent, outward positive, and its normal, up
-    positive), to the anchor at ``offset`` below the centreline (slotexp/soft/loads.py).
+    torso (``guide_out``, ``guide_height``: m from the leg's root along the root's tangent, outward positive, and
+    its normal, up positive), to the anchor at ``offset`` below the centreline (slotexp/soft/loads.py).
     """
 
     offset: float = num_field(0.010, lo=0.0, lo_open=True, unit="m")
@@ -162,9 +162,12 @@ class TendonConfig:
     # it out as it winds the first in, and below its zero it pulls the leg up (slotexp.soft.loads.tendon_cable)
     antagonist: bool = False
     routing: str = choice_field("offset", "offset", "bowstring")
-    # below the root: a guide above it makes the cable lift the legs, and the robot lies on its belly (measured:
-    # 16.9 mm high with the guide 11 mm above, 28 mm with it 12 mm below); where the robot's is, its files do not say
-    guide: list[float] = vec_field([0.0, -0.012], length=2, lo=-0.2, hi=0.2, unit="m")
+    # the bowstring's guide on the torso, from the leg's root: along the root's tangent (outward positive) and its
+    # normal (up positive). Below the root: a guide above it makes the cable lift the legs, and the robot lies on
+    # its belly (measured: 16.9 mm high with the guide 11 mm above, 28 mm with it 12 mm below); where the robot's
+    # is, its files do not say
+    guide_out: float = num_field(0.0, lo=-0.2, hi=0.2, unit="m")
+    guide_height: float = num_field(-0.012, lo=-0.2, hi=0.2, unit="m")
 
 
 @dataclass

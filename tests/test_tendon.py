@@ -125,7 +125,7 @@ def test_a_robot_on_bowstrings_walking_in_free_space_keeps_its_momentum() -> Non
         "sim.gravity=0",
         "sim.ground=false",
         "robot.tendon.routing=bowstring",
-        "robot.tendon.guide=[0.0,-0.006]",
+        "robot.tendon.guide_height=-0.006",
         "robot.tendon.offset=0.004",
     )
     from tests.test_cosserat import _total_mass

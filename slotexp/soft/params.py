@@ -106,6 +106,6 @@ def leg_params(
         mu_static=0.0 if contact.static_friction is None else contact.static_friction,  # 0: plain Coulomb
         v_stribeck=contact.stribeck_velocity,
         tendon_route=1.0 if tendon.routing == "bowstring" else 0.0,
-        tendon_guide_x=tendon.guide[0],
-        tendon_guide_z=tendon.guide[1],
+        tendon_guide_x=tendon.guide_out,
+        tendon_guide_z=tendon.guide_height,
     )
