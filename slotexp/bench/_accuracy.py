@@ -100,12 +100,14 @@ class _TraceSink:
         pass
 
 
-def with_plant(cfg: SlotConfig, integrator: str, dt: float, jacobian_age: int | None = None) -> SlotConfig:
-    """``cfg`` with the soft plant's integrator, step and (if given) Jacobian age replaced."""
+def with_plant(
+    cfg: SlotConfig, integrator: str, dt: float, jacobian_age: int | None = None, newton: int = 1
+) -> SlotConfig:
+    """``cfg`` with the soft plant's integrator, step, (if given) Jacobian age and implicit passes replaced."""
     age = cfg.plant.jacobian_age if jacobian_age is None else jacobian_age
     return dataclasses.replace(
         cfg,
-        plant=dataclasses.replace(cfg.plant, integrator=integrator, jacobian_age=age),
+        plant=dataclasses.replace(cfg.plant, integrator=integrator, jacobian_age=age, newton=newton),
         sim=dataclasses.replace(cfg.sim, dt=dt),
     )
 

@@ -4,9 +4,11 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
 
 - ``symplectic`` and ``implicit``: microseconds per leg per step for a loaded leg in
   stance (gravity, tendon at 80 deg, ground contact, friction), N from the config,
-  symplectic at 0.8 x its stable step, implicit at ``sim.dt``. ``extra`` holds the cost
-  per simulated second and the tip error against a symplectic reference at a 10x
-  smaller step, over the same 0.2 s transient.
+  symplectic at 0.8 x its stable step, implicit at ``sim.dt``, and backward Euler by
+  Newton corrections (``plant.newton``) at 10 ms and at the 1/30 s control period, where
+  the linearly implicit step diverges. ``extra`` holds the cost per simulated second and
+  the tip error against a symplectic reference at a 10x smaller step, over the same 0.2 s
+  transient.
 - ``pyelastica`` (if installed): a straight PyElastica rod with as many elements,
   equal cross-section area, same E and density, clamped, under gravity, stepped by
   its PositionVerlet at the symplectic step.
@@ -31,6 +33,7 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -39,6 +42,7 @@ import numpy as np
 
 from .. import telemetry as T
 from ..config import SlotConfig
+from ..errors import DivergenceError
 from ..plants import TendonCommand
 from ..soft.integrators import LegSim, stable_dt
 from ..soft.statics import clamped_leg, set_tendon
@@ -48,16 +52,32 @@ from ._accuracy import CASES, compare, real_time_factor, run_case, with_plant, w
 TRANSIENT_S = 0.2
 BATCH_SIZES = (1, 8, 64)
 BATCH_S = 2.0  # s simulated per robot
+LARGE_STEPS = (1e-2, 1.0 / 30.0)  # s: the loaded leg at the 1/30 s control period, and at 10 ms
+LARGE_STEP_NEWTON = 8
 REFERENCE_DT = 2.5e-5  # s, implicit with a fresh Jacobian every step: the converged closed-loop reference
-# implicit (step s, Jacobian age in steps; None: the configured age) compared with it, plus symplectic at its
-# own step. The exact step (age 1) at twice the reference's shows the reference is converged.
-ACCURACY_SETTINGS = ((5e-5, 1), (1e-4, 1), (2e-4, 1), (1e-4, None), (2e-4, None), (5e-4, None))
+# implicit (step s, Jacobian age in steps, None: the configured age; passes per step, 1: linearly implicit, more:
+# backward Euler by Newton corrections) compared with it, plus symplectic at its own step. The exact step (age 1)
+# at twice the reference's shows the reference is converged.
+ACCURACY_SETTINGS = (
+    (5e-5, 1, 1),
+    (1e-4, 1, 1),
+    (2e-4, 1, 1),
+    (1e-4, None, 1),
+    (2e-4, None, 1),
+    (5e-4, None, 1),
+    (1e-3, 1, 1),
+    (1e-3, 1, 8),
+    (2e-3, 1, 8),
+    (5e-3, 1, 8),
+    (1e-2, 1, 8),
+)
 
 
-def _loaded_leg(cfg: SlotConfig, jacobian_age: int = 1) -> LegSim:
+def _loaded_leg(cfg: SlotConfig, jacobian_age: int = 1, newton: int = 1) -> LegSim:
     sim = clamped_leg(cfg, root_height=cfg.gait.height - cfg.robot.torso.size[2] / 2)
     set_tendon(sim, 80.0, cfg.robot.leg.pulley_radius)
     sim.jacobian_age = jacobian_age
+    sim.newton = newton
     return sim
 
 
@@ -74,8 +94,10 @@ def _time_steps(sim: LegSim, h: float, integrator: str, blocks: int, per_block: 
     return out, first
 
 
-def _tip_after_transient(cfg: SlotConfig, h: float, integrator: str, jacobian_age: int = 1) -> np.ndarray:
-    sim = _loaded_leg(cfg, jacobian_age)
+def _tip_after_transient(
+    cfg: SlotConfig, h: float, integrator: str, jacobian_age: int = 1, newton: int = 1
+) -> np.ndarray:
+    sim = _loaded_leg(cfg, jacobian_age, newton)
     free = sim.free_length
     sim.free_length = free + cfg.robot.leg.pulley_radius * np.deg2rad(30.0)  # start 30 deg slacker
     sim.step(h, int(round(0.05 / h)), integrator)
@@ -150,14 +172,16 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     h_imp = cfg.sim.dt  # the configured step (plant=cosserat: 1e-4 s)
     age = cfg.plant.jacobian_age
     timings = {}
-    variants = [("symplectic", "symplectic", h_sym, 2000, 1), ("implicit", "implicit", h_imp, 500, age)]
+    variants = [("symplectic", "symplectic", h_sym, 2000, 1, 1), ("implicit", "implicit", h_imp, 500, age, 1)]
     if age != 1:
-        variants.append(("implicit, Jacobian every step", "implicit", h_imp, 500, 1))
-    for label, name, h, per_block, jac_age in variants:
-        leg = _loaded_leg(cfg, jac_age)
+        variants.append(("implicit, Jacobian every step", "implicit", h_imp, 500, 1, 1))
+    for h_big in LARGE_STEPS:  # backward Euler by Newton corrections, where the linearly implicit step diverges
+        variants.append((f"implicit, newton {LARGE_STEP_NEWTON}", "implicit", h_big, 20, 1, LARGE_STEP_NEWTON))
+    for label, name, h, per_block, jac_age, newton in variants:
+        leg = _loaded_leg(cfg, jac_age, newton)
         leg.step(h, int(round(0.5 / h)), name)  # settle into stance first
         before = leg.factorisations
-        timings[label] = (name, h, jac_age) + _time_steps(leg, h, name, 60, per_block)
+        timings[label] = (name, h, jac_age, newton) + _time_steps(leg, h, name, 60, per_block)
         timed = 1 + 60 * per_block
         timings[label] += ((leg.factorisations - before) / timed if name == "implicit" else float("nan"),)
     h_ref = h_sym / 10
@@ -165,9 +189,9 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     rows: list[BenchRow] = []
     py = _pyelastica_step_us(cfg, h_sym, 20, 200)
     base = float(np.median(py)) if py is not None else float(np.median(timings["symplectic"][3]))
-    for label, (name, h, jac_age, per_step, first, factored) in timings.items():
+    for label, (name, h, jac_age, newton, per_step, first, factored) in timings.items():
         med = float(np.median(per_step))
-        tip_err = float(np.linalg.norm(_tip_after_transient(cfg, h, name, jac_age) - tip_ref))
+        tip_err = float(np.linalg.norm(_tip_after_transient(cfg, h, name, jac_age, newton) - tip_ref))
         extra = {
             "dt_s": h,
             "us_per_simulated_second": med / h * 1e6,
@@ -177,7 +201,7 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
             "n_nodes": sim.model.n_nodes,
         }
         if name == "implicit":
-            extra |= {"jacobian_age": jac_age, "factorisations_per_step": factored}
+            extra |= {"jacobian_age": jac_age, "newton": newton, "factorisations_per_step": factored}
         rows.append(
             BenchRow(
                 "leg", f"{label} dt={h:.3g}", med * 1e6, float(np.quantile(per_step, 0.99)) * 1e6, base / med, extra
@@ -231,16 +255,25 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
         )
     )
     rows += _batch_rows(cfg)
-    settings = list(dict.fromkeys(("implicit", dt, age if a is None else a) for dt, a in ACCURACY_SETTINGS))
-    settings.append(("symplectic", h_sym, 1))
-    settings.append(("implicit", REFERENCE_DT / 2, 1))  # the reference's own convergence
+    settings = list(
+        dict.fromkeys(("implicit", dt, age if a is None else a, newton) for dt, a, newton in ACCURACY_SETTINGS)
+    )
+    settings.append(("symplectic", h_sym, 1, 1))
+    settings.append(("implicit", REFERENCE_DT / 2, 1, 1))  # the reference's own convergence
     for case in CASES:
         reference = run_case(with_plant(cfg, "implicit", REFERENCE_DT, 1), case)
-        for integrator, dt, jac_age in settings:
-            trace = run_case(with_plant(cfg, integrator, dt, jac_age), case)
+        for integrator, dt, jac_age, newton in settings:
+            try:
+                trace = run_case(with_plant(cfg, integrator, dt, jac_age, newton), case)
+            except DivergenceError as err:
+                rows.append(BenchRow("accuracy", f"{case.name}, {integrator} dt={dt:.3g}: diverged", math.nan,
+                                     math.nan, 0.0, {"error": str(err)}))  # fmt: skip
+                continue
             result = compare(trace, reference, case.judged_from)
-            default = (integrator, dt, jac_age) == (cfg.plant.integrator, cfg.sim.dt, age)
+            default = (integrator, dt, jac_age, newton) == (cfg.plant.integrator, cfg.sim.dt, age, cfg.plant.newton)
             label = f"implicit dt={dt:.3g} age {jac_age}" if integrator == "implicit" else f"{integrator} dt={dt:.3g}"
+            if newton > 1:
+                label += f" newton {newton}"
             if dt == REFERENCE_DT / 2:
                 label += " (the reference's half step)"
             rows.append(

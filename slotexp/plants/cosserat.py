@@ -73,6 +73,9 @@ class CosseratPlantConfig(PlantConfig):
     # implicit step: steps a factored Jacobian may serve (1: a fresh one every step); a change of contact,
     # friction regime or tendon state refreshes it sooner (slotexp/soft/integrators.py)
     jacobian_age: int = num_field(1, lo=1, hi=100000, unit="steps")
+    # implicit step: passes per step (1: linearly implicit, one linearisation at the step's start; more:
+    # Newton corrections towards backward Euler, which stays stable in contact at millisecond steps)
+    newton: int = num_field(1, lo=1, hi=50, unit="passes")
 
 
 @PLANTS.register()
@@ -92,6 +95,8 @@ class CosseratPlant:
                 "robot.contact.static_friction is a law of the implicit step only: drop it, or use "
                 "plant.integrator=implicit"
             )
+        if symplectic and cfg.plant.newton > 1:
+            raise ConfigError("plant.newton is the implicit step's: drop it, or use plant.integrator=implicit")
         if cfg.robot.leg.model == "paper" and not symplectic:
             raise ConfigError(
                 "robot.leg.model=paper has no Jacobian for the implicit step: add plant.integrator=symplectic "
@@ -380,6 +385,7 @@ class CosseratPlant:
             contact.slip_velocity,
             self.implicit,
             self.cfg.plant.jacobian_age,
+            self.cfg.plant.newton,
             self.belly_points,
             self.belly_par,
             self.k_lat,

@@ -44,7 +44,7 @@ from numba import prange
 
 from ..body import advance_quaternion, quat_to_rot, solve_spd
 from ..jit import njit
-from .integrators import JacobianState, LegState, StepWork, implicit_once, jacobian_state, symplectic_once
+from .integrators import JacobianState, LegState, StepWork, implicit_step, jacobian_state, symplectic_once
 from .loads import coulomb_friction, friction_slope
 from .params import O_DIV, O_FL, O_FX, O_FZ, O_M, O_T, O_TS, P_MUS, P_VS
 from .servo import servo_step
@@ -68,7 +68,7 @@ class TorsoModel(NamedTuple):
 class Settings(NamedTuple):
     """What a step holds fixed: the servos' (time constant, stall torque, no-load speed, profile speed),
     the pulley radius, the legs' friction (mu, its regularisation speed), the integrator (implicit or
-    symplectic) and the Jacobian's age, the torso's underside points (P, 3, body) with their (stiffness,
+    symplectic), the Jacobian's age and the implicit step's passes (1: linearly implicit), the torso's underside points (P, 3, body) with their (stiffness,
     damping, mu, v_eps), and the legs' sideways stiffness (N/m, 0: rigid across their planes)."""
 
     servo_par: np.ndarray
@@ -77,6 +77,7 @@ class Settings(NamedTuple):
     v_eps: float
     implicit: bool
     max_age: int
+    newton: int
     belly_points: np.ndarray
     belly_par: np.ndarray
     k_lat: float
@@ -401,7 +402,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
     normal, out, reaction, belly, lateral = robot[13:]
     force, moment, rhs, vflat, cth, sth, lu, kband, jvec, jmeta = work
     torso_mass, inertia, gravity, corners, yaw, rest_theta0 = torso_model
-    servo_par, pulley, mu, v_eps, implicit, max_age, belly_points, belly_par, k_lat = settings
+    servo_par, pulley, mu, v_eps, implicit, max_age, newton, belly_points, belly_par, k_lat = settings
     mass = leg.mass
     inertia_el = leg.inertia
     n_legs = pos.shape[0]
@@ -410,6 +411,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
     inv_inertia = 1.0 / inertia_el
     root = np.zeros(6)
     vlat = np.zeros(n_nodes)
+    saved = np.zeros((4, 3 * n_nodes - 1))  # the implicit step's Newton corrections and halvings (implicit_step)
     f0s = np.zeros(n_nodes)  # a leg's pressed nodes' friction across the plane, and its slope
     slopes = np.zeros((n_legs, n_nodes))
     pulls = np.zeros(n_legs)  # per leg, the sum of its nodes' F0 + c v (the friction's affine part) ...
@@ -473,7 +475,10 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
             scratch = StepWork(force, moment, rhs, vflat, cth[i], sth[i])
             if implicit:
                 jac = JacobianState(lu[i], kband[i], jvec[i], jmeta[i])
-                implicit_once(state, leg, par[i], free_length, root, vlat, h, normal[i], out[i], scratch, jac, max_age)
+                implicit_step(
+                    state, leg, par[i], free_length, root, vlat, h, normal[i], out[i], scratch, jac, max_age, newton,
+                    saved,
+                )  # fmt: skip
             else:
                 symplectic_once(
                     state, leg, inv_mass, inv_inertia, par[i], free_length, root, vlat, h, normal[i], out[i], scratch

@@ -31,8 +31,10 @@ from .loads import (
     contact_force,
     contact_jacobian,
     contact_proximal,
+    coulomb_friction,
     damping_reaction,
     dissipative_params,
+    friction_slope,
     root_frame_velocity,
     root_reaction,
     tendon_jacobian,
@@ -74,6 +76,10 @@ from .rod import (
 # entries), then these, counted from N: the cable's state, the factorisation's age in steps, 1 + g^T W^-1 u,
 # the step it was made with, and how many factorisations the leg has made.
 J_CABLE, J_AGE, J_GZ, J_STEP, J_COUNT = range(5)
+# m: a Newton correction that moves no position by more than this ends the step's iterations (implicit_step)
+NEWTON_TOL = 1e-7
+TANGENT_PASSES = 4  # Newton corrections that linearise the friction by its tangent; later ones by its secant
+MAX_HALVINGS = 6  # a step whose Newton corrections do not converge is retaken as up to 2^6 shorter ones
 
 
 @njit(cache=True)
@@ -95,6 +101,27 @@ def _finish_step(pos, tension, pair_upper, total_n, total_f, out):
     tip = pos[pos.shape[0] - 1]
     if not (np.isfinite(tip[0]) and np.isfinite(tip[1]) and abs(tip[0]) < 100.0 and abs(tip[1]) < 100.0):
         out[O_DIV] = 1.0
+
+
+@njit(cache=True)
+def _normal_force(pos, vel, i, ground, k_c, d_c):
+    """Node ``i``'s contact normal force, k depth - d v_z, or 0 above the ground or pulling."""
+    if not ground or pos[i, 1] >= 0.0:
+        return 0.0
+    return max(0.0, -k_c * pos[i, 1] - d_c * vel[i, 1])
+
+
+@njit(cache=True)
+def _friction_newton_slope(vs, vlat, nrm, mu, v_eps, mu_s, v_s, tangent):
+    """The slope along the plane of :func:`coulomb_friction` that a Newton correction uses: its tangent
+    (``tangent``; quadratic convergence where the node stays sliding or sticking) or its secant (a
+    majorise-minimise step on the friction's convex dissipation: slower, but it cannot cycle between
+    sticking and sliding). Sliding, the tangent is mu N v_lat^2 / |v|^3 (zero along a straight slip);
+    with a static coefficient it is the secant always."""
+    speed = np.sqrt(vs * vs + vlat * vlat)
+    if not tangent or speed < v_eps or mu_s > mu:
+        return friction_slope(vs, vlat, nrm, mu, v_eps, mu_s, v_s)
+    return mu * nrm * vlat * vlat / (speed * speed * speed)
 
 
 class LegState(NamedTuple):
@@ -273,7 +300,7 @@ def step_symplectic(state, leg, par, free_length, root, h, n_steps, normal, out)
 
 
 @njit(cache=True)
-def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age):
+def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, correction, vstart):
     """One linearly implicit Euler step, W (M - h^2 K - h C) dv = h F(x, v) - h^2 K v, v' = v + dv.
 
     Arguments as :func:`symplectic_once` (``work.cth``/``sth`` are set from theta here: numba
@@ -292,6 +319,13 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     Jacobians are those of up to ``max_age`` - 1 steps earlier (a W-method: still
     consistent, since F is always current; the structural changes that would make it
     unstable refresh them at once).
+
+    With ``correction`` the pass is a Newton correction of a step already taken (:func:`implicit_step`):
+    the state is the step's end (x_k = x_0 + h v_k, ``root`` the root at the step's end), ``vstart`` (3N - 1)
+    the velocities at the step's start, and the pass solves W delta = h F(x_k, v_k) - M (v_k - v_0) for
+    the backward Euler step's residual, moving velocities by delta and positions by h delta. The reaction
+    on the root is the same linearisation about x_k, so momentum is exchanged exactly at every pass.
+    Returns the largest velocity change of the pass (m/s or rad/s).
     """
     pos, vel, theta, omega = state
     rest_pos, _, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia = leg
@@ -342,9 +376,26 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         d = 3 * e + 2
         rhs[d] = h * (moment[e] + c * inertia[e] * (root[5] - omega[e]))
         vflat[d] = omega[e]
+    if correction:  # the backward Euler residual's inertia: - M (v_k - v_0)
+        for i in range(1, n):
+            rhs[3 * i] -= mass[i] * (vflat[3 * i] - vstart[3 * i])
+            rhs[3 * i + 1] -= mass[i] * (vflat[3 * i + 1] - vstart[3 * i + 1])
+        for e in range(n_el):
+            rhs[3 * e + 2] -= inertia[e] * (vflat[3 * e + 2] - vstart[3 * e + 2])
     total_n = 0.0
     total_f = 0.0
     for i in range(1, n):
+        if correction:
+            # the normal force at x_k; the friction's at the step's start (``normal``, kept), as in the first pass
+            nrm = _normal_force(pos, vel, i, ground, k_c, d_c)
+            fx = 0.0
+            if normal[i] > 0.0:
+                fx, _ = coulomb_friction(vel[i, 0], vlat[i], normal[i], mu, v_eps, mu_s, v_s)
+            rhs[3 * i] += h * fx
+            rhs[3 * i + 1] += h * nrm
+            total_n += nrm
+            total_f += fx
+            continue
         nrm, fx, regime = 0.0, 0.0, 0
         if ground and pos[i, 1] < 0.0:
             nrm, fx, _, regime = contact_force(
@@ -357,6 +408,8 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         total_f += fx
         if regime != jmeta[i]:
             fresh = True
+    if correction:
+        fresh = True  # a Newton correction linearises at x_k, v_k
     g = jvec[1]
     smu = jvec[0]
     if fresh:
@@ -368,6 +421,18 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         if tension > 0.0:
             tendon_jacobian(pos, cth, sth, root[4], tension, offset, par, h2, kband, g)
         for i in range(1, n):
+            if correction:
+                # Newton on the normal force; on the friction (its normal force held) the secant at v_k, whose
+                # iteration is a majorise-minimise one on the friction's convex dissipation: it cannot cycle
+                if _normal_force(pos, vel, i, ground, k_c, d_c) > 0.0:
+                    kband[3 * i + 1, 4] += h2 * k_c
+                    lu[3 * i + 1, 4] += h * d_c
+                if normal[i] > 0.0:
+                    lu[3 * i, 4] += h * _friction_newton_slope(
+                        vel[i, 0], vlat[i], normal[i], mu, v_eps, mu_s, v_s, correction <= TANGENT_PASSES
+                    )
+                jmeta[i] = -1.0  # the next step's first pass factors afresh
+                continue
             regime = 0
             if ground and pos[i, 1] < 0.0:
                 nrm, _, g_x, regime = contact_force(
@@ -403,11 +468,12 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         jmeta[i_age] = 0.0
         jmeta[n + J_COUNT] += 1.0
     jmeta[i_age] += 1.0
-    # - h^2 K v, with the K the factorisation was made with
-    banded_multiply_subtract(kband, vflat, rhs)
-    # the clamp angle moves at root[5] over the step: its spring acts on theta_0
-    rhs[2] += h2 * ei[0] / voronoi[0] * root[5]
-    if taut:
+    if not correction:
+        # - h^2 K v, with the K the factorisation was made with
+        banded_multiply_subtract(kband, vflat, rhs)
+        # the clamp angle moves at root[5] over the step: its spring acts on theta_0
+        rhs[2] += h2 * ei[0] / voronoi[0] * root[5]
+    if taut and not correction:
         gv = 0.0
         for d in range(nd):
             gv += g[d] * vflat[d]
@@ -425,20 +491,23 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         ratio = gy / jmeta[i_gz]
         for d in range(nd):
             rhs[d] -= ratio * smu[d]
-    for d in range(nd):
+    change = 0.0
+    for d in range(2, nd):
         vflat[d] += rhs[d]
-    x = vflat
+        change = max(change, abs(rhs[d]))
+    # what moved the positions over the step: the new velocity, or (a correction) its change
+    x = rhs if correction else vflat
     for i in range(n):
-        vel[i, 0] = x[3 * i]
-        vel[i, 1] = x[3 * i + 1]
+        vel[i, 0] = vflat[3 * i]
+        vel[i, 1] = vflat[3 * i + 1]
     for e in range(n_el):
-        omega[e] = x[3 * e + 2]
+        omega[e] = vflat[3 * e + 2]
     damp_x, damp_z, damp_m = damping_reaction(pos, vel, omega, mass, inertia, par, root)  # where it was applied
     for i in range(n):
-        pos[i, 0] += h * vel[i, 0]
-        pos[i, 1] += h * vel[i, 1]
+        pos[i, 0] += h * x[3 * i]
+        pos[i, 1] += h * x[3 * i + 1]
     for e in range(n_el):
-        theta[e] += h * omega[e]
+        theta[e] += h * x[3 * e + 2]
     # reaction on the root, consistent with the implicit step (momentum is exchanged exactly): the root
     # rows of h^2 (elastic + tendon) K
     d0 = 0.0
@@ -456,18 +525,124 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
             gx += g[d] * x[d]
         # the tension's change over the step, as the nodes move and the root angle turns (the same change the
         # nodes felt through the rank-one term): the root's share of it
-        stretch_rate = gx - offset * root[5]
+        stretch_rate = gx if correction else gx - offset * root[5]
         out[O_FX] -= h * par[P_TK] * g[0] * stretch_rate
         out[O_FZ] -= h * par[P_TK] * g[1] * stretch_rate
         tension_end = tension + par[P_TK] * h * stretch_rate
     k0 = ei[0] / voronoi[0]
-    out[O_M] = k0 * (theta[0] - root[4] - h * root[5])
+    out[O_M] = k0 * (theta[0] - root[4] - (0.0 if correction else h * root[5]))
     if tension > 0.0:
         out[O_M] += tension_end * offset
     out[O_FX] += damp_x
     out[O_FZ] += damp_z
     out[O_M] += damp_m
     _finish_step(pos, tension, offset < 0.0 and par[P_TPAIR] > 0.0, total_n, total_f, out)
+    return change
+
+
+@njit(cache=True)
+def _save(state, saved):
+    """The state's velocities into ``saved[0]`` and positions into ``saved[1]``, in the step's layout (3N - 1)."""
+    pos, vel, theta, omega = state
+    for i in range(pos.shape[0]):
+        saved[0, 3 * i] = vel[i, 0]
+        saved[0, 3 * i + 1] = vel[i, 1]
+        saved[1, 3 * i] = pos[i, 0]
+        saved[1, 3 * i + 1] = pos[i, 1]
+    for e in range(theta.shape[0]):
+        saved[0, 3 * e + 2] = omega[e]
+        saved[1, 3 * e + 2] = theta[e]
+
+
+@njit(cache=True)
+def _restore(state, saved):
+    """The state :func:`_save` kept in ``saved``."""
+    pos, vel, theta, omega = state
+    for i in range(pos.shape[0]):
+        vel[i, 0] = saved[0, 3 * i]
+        vel[i, 1] = saved[0, 3 * i + 1]
+        pos[i, 0] = saved[1, 3 * i]
+        pos[i, 1] = saved[1, 3 * i + 1]
+    for e in range(theta.shape[0]):
+        omega[e] = saved[0, 3 * e + 2]
+        theta[e] = saved[1, 3 * e + 2]
+
+
+@njit(cache=True)
+def _newton_step(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, newton, saved, end):
+    """One backward Euler step of ``h`` from ``root``: the linearly implicit pass and up to ``newton`` - 1
+    corrections. Returns whether the corrections converged (a correction moved no position by more than
+    ``NEWTON_TOL``)."""
+    _save(state, saved)
+    implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, 0, saved[0])
+    end[:] = root  # the root at the step's end: where the corrections evaluate the loads
+    end[0] += h * root[2]
+    end[1] += h * root[3]
+    end[4] += h * root[5]
+    for k in range(1, newton):
+        if out[O_DIV] > 0.0:
+            return False
+        change = implicit_once(state, leg, par, free_length, end, vlat, h, normal, out, work, jac, max_age, k, saved[0])
+        if h * change <= NEWTON_TOL:
+            return out[O_DIV] == 0.0
+    return False
+
+
+@njit(cache=True)
+def implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, newton, saved):
+    """One implicit Euler step of ``h`` with the root moving as ``root`` says.
+
+    ``newton`` = 1: the linearly implicit step (:func:`implicit_once`). More: backward Euler, solved by the
+    linearly implicit pass and up to ``newton`` - 1 Newton corrections; where they do not converge (a foot
+    landing, a cable snapping taut), the step is taken again as 2, 4, ... steps, the root moving on between
+    them, and the reaction on the root is their mean (the same impulse); the last resort is 2^``MAX_HALVINGS``
+    linearly implicit steps.
+
+    Why: the linearly implicit step linearises contact, friction and the cable once, at the step's start,
+    and a switch within the step (a node landing, a foot sticking, a cable going slack) it sees only a step
+    late: at millisecond steps the overshoot grew from step to step (the loaded leg diverged at 1.5 ms).
+    Backward Euler itself is stable there; the corrections solve it, and the halving keeps a switch the
+    corrections cannot resolve from spoiling the step. ``saved`` (4, 3N - 1) is scratch.
+    """
+    if newton <= 1:
+        implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, 0, saved[0])
+        return
+    start = saved[2:4]  # the step's start, kept while a halving retakes it (saved[0:2] serve each step)
+    sub_root = np.empty(6)
+    end = np.empty(6)
+    sums = np.zeros(3)
+    for level in range(MAX_HALVINGS + 1):
+        if level > 0:
+            _restore(state, start)
+            out[O_DIV] = 0.0  # a failed try's blow-up is undone with it
+        else:
+            _save(state, start)
+        m = 1 << level
+        hs = h / m
+        sums[:] = 0.0
+        converged = True
+        for k in range(m):
+            sub_root[:] = root
+            sub_root[0] += k * hs * root[2]
+            sub_root[1] += k * hs * root[3]
+            sub_root[4] += k * hs * root[5]
+            if level == MAX_HALVINGS:  # the last resort: linearly implicit steps, stable below about 1 ms
+                implicit_once(
+                    state, leg, par, free_length, sub_root, vlat, hs, normal, out, work, jac, max_age, 0, saved[0]
+                )
+            elif not _newton_step(
+                state, leg, par, free_length, sub_root, vlat, hs, normal, out, work, jac, max_age, newton, saved, end
+            ):
+                converged = False
+                break
+            sums[0] += out[O_FX]
+            sums[1] += out[O_FZ]
+            sums[2] += out[O_M]
+        if converged or level == MAX_HALVINGS:
+            out[O_FX] = sums[0] / m
+            out[O_FZ] = sums[1] / m
+            out[O_M] = sums[2] / m
+            return
 
 
 def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:
@@ -481,7 +656,7 @@ def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:
 
 
 @njit(cache=True)
-def step_implicit(state, leg, par, free_length, root, h, n_steps, normal, out, jac, max_age):
+def step_implicit(state, leg, par, free_length, root, h, n_steps, normal, out, jac, max_age, newton=1):
     """``n_steps`` of :func:`implicit_once` with the root held (the Jacobian state ``jac`` is the caller's;
     nothing slips across the plane)."""
     pos, _, theta, _ = state
@@ -491,8 +666,9 @@ def step_implicit(state, leg, par, free_length, root, h, n_steps, normal, out, j
         np.zeros(pos.shape), np.zeros(theta.shape[0]), np.zeros(nd), np.zeros(nd),
         np.zeros(theta.shape[0]), np.zeros(theta.shape[0]),
     )  # fmt: skip
+    saved = np.zeros((4, nd))
     for _ in range(n_steps):
-        implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age)
+        implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, newton, saved)
         if out[O_DIV] > 0.0:
             return
     _set_root(pos, state.vel, root)
@@ -595,6 +771,7 @@ class LegSim:
         self.out = np.zeros(len(OUT))
         self.time = 0.0
         self.jacobian_age = 1  # steps the implicit step may reuse its factored Jacobian (1: none)
+        self.newton = 1  # passes of the implicit step (1: linearly implicit; more: Newton corrections)
         self.jacobian = jacobian_state(model.n_nodes)
 
     @property
@@ -610,7 +787,7 @@ class LegSim:
         state = LegState(self.pos, self.vel, self.theta, self.omega)
         args = (state, m, self.par, float(self.free_length), self.root, h, n_steps, self.normal, self.out)
         if implicit:
-            step_implicit(*args, self.jacobian, self.jacobian_age)
+            step_implicit(*args, self.jacobian, self.jacobian_age, self.newton)
         else:
             step_symplectic(*args)
         self.time += h * n_steps
