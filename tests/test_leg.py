@@ -16,7 +16,7 @@ from slotexp.soft.rod import (
     lateral_stiffness,
     model_from_shape,
 )
-from tests.helpers import load
+from tests.helpers import load as load_config
 
 L, W, H, E, RHO = 0.19, 0.02, 0.005, 1.0e7, 1200.0
 EI = E * W * H**3 / 12
@@ -224,7 +224,7 @@ def _stance_after_a_tendon_step(h, newton, seconds=1.0):
     step: tip (s, z), tension and the ground's normal force after ``seconds``."""
     from slotexp.bench.leg import _loaded_leg
 
-    cfg = load("plant=cosserat")
+    cfg = load_config("plant=cosserat")
     sim = _loaded_leg(cfg, 1, newton)
     wound = sim.free_length
     sim.free_length = wound + cfg.robot.leg.pulley_radius * np.deg2rad(30.0)

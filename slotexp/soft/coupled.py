@@ -68,8 +68,9 @@ class TorsoModel(NamedTuple):
 class Settings(NamedTuple):
     """What a step holds fixed: the servos' (time constant, stall torque, no-load speed, profile speed),
     the pulley radius, the legs' friction (mu, its regularisation speed), the integrator (implicit or
-    symplectic), the Jacobian's age and the implicit step's passes (1: linearly implicit), the torso's underside points (P, 3, body) with their (stiffness,
-    damping, mu, v_eps), and the legs' sideways stiffness (N/m, 0: rigid across their planes)."""
+    symplectic), the Jacobian's age and the implicit step's passes (1: linearly implicit), the torso's
+    underside points (P, 3, body) with their (stiffness, damping, mu, v_eps), and the legs' sideways
+    stiffness (N/m, 0: rigid across their planes)."""
 
     servo_par: np.ndarray
     pulley: float
