@@ -181,15 +181,16 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
         leg = _loaded_leg(cfg, jac_age, newton)
         leg.step(h, int(round(0.5 / h)), name)  # settle into stance first
         before = leg.factorisations
-        timings[label] = (name, h, jac_age, newton) + _time_steps(leg, h, name, 60, per_block)
+        key = (label, h)
+        timings[key] = (name, h, jac_age, newton) + _time_steps(leg, h, name, 60, per_block)
         timed = 1 + 60 * per_block
-        timings[label] += ((leg.factorisations - before) / timed if name == "implicit" else float("nan"),)
+        timings[key] += ((leg.factorisations - before) / timed if name == "implicit" else float("nan"),)
     h_ref = h_sym / 10
     tip_ref = _tip_after_transient(cfg, h_ref, "symplectic")
     rows: list[BenchRow] = []
     py = _pyelastica_step_us(cfg, h_sym, 20, 200)
-    base = float(np.median(py)) if py is not None else float(np.median(timings["symplectic"][3]))
-    for label, (name, h, jac_age, newton, per_step, first, factored) in timings.items():
+    base = float(np.median(py)) if py is not None else float(np.median(timings[("symplectic", h_sym)][4]))
+    for (label, _), (name, h, jac_age, newton, per_step, first, factored) in timings.items():
         med = float(np.median(per_step))
         tip_err = float(np.linalg.norm(_tip_after_transient(cfg, h, name, jac_age, newton) - tip_ref))
         extra = {
