@@ -44,7 +44,15 @@ from numba import prange
 
 from ..body import advance_quaternion, quat_to_rot, solve_spd
 from ..jit import njit
-from .integrators import JacobianState, LegState, StepWork, implicit_step, jacobian_state, symplectic_once
+from .integrators import (
+    JacobianState,
+    LegState,
+    StepWork,
+    implicit_step,
+    jacobian_state,
+    root_response,
+    symplectic_once,
+)
 from .loads import coulomb_friction, friction_slope
 from .params import O_DIV, O_FL, O_FX, O_FZ, O_M, O_T, O_TS, P_MUS, P_VS
 from .servo import servo_step
@@ -313,10 +321,13 @@ def velocity_from_momentum(torso, momentum, rot, aug, scratch, rhs, xi):
 
 
 @njit(cache=True)
-def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly):
+def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly, implicit_normal):
     """One of the torso's underside points on the ground: penalty normal force and isotropic Coulomb friction
     (:func:`coulomb_friction`'s law in the plane of the floor), the friction linearised in the torso's velocity
-    (its slope into ``damp``, h x the 6x6 on (v, w), as the legs' friction across their planes)."""
+    (its slope into ``damp``, h x the 6x6 on (v, w), as the legs' friction across their planes). With
+    ``implicit_normal`` (backward Euler, ``plant.newton`` > 1) the normal force is taken at the step's end too,
+    k (depth - h v_z') - d v_z': the penalty spring (1e5 N/m on a 1 kg torso) is stable at millisecond steps
+    only so."""
     r0 = rot[0, 0] * point[0] + rot[0, 1] * point[1] + rot[0, 2] * point[2]
     r1 = rot[1, 0] * point[0] + rot[1, 1] * point[1] + rot[1, 2] * point[2]
     r2 = rot[2, 0] * point[0] + rot[2, 1] * point[1] + rot[2, 2] * point[2]
@@ -348,6 +359,17 @@ def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly):
     for a in range(6):
         for b in range(a, 6):
             damp[a, b] += h * (c * jx[a] * jx[b] + c * jy[a] * jy[b])
+    if implicit_normal:
+        # N' = N + (k h + d) (v_z - v_z'): the affine part into the load, the slope on jz = (0, 0, 1, r1, -r0, 0)
+        cz = par[0] * h + par[1]
+        gz = cz * vz
+        load[2] += gz
+        load[3] += r1 * gz
+        load[4] -= r0 * gz
+        jz = (0.0, 0.0, 1.0, r1, -r0, 0.0)
+        for a in range(6):
+            for b in range(a, 6):
+                damp[a, b] += h * cz * jz[a] * jz[b]
     belly[0] += nrm
     belly[1] += fx
     belly[2] += fy
@@ -368,6 +390,81 @@ def _series_spring(k_lat, deflection, slope_sum, h):
         return 1.0, 0.0
     denominator = k_lat * h + slope_sum
     return k_lat * h / denominator, k_lat * deflection / denominator
+
+
+@njit(cache=True)
+def _root_map(ux, uy, rcx, rcy, rcz, jmap):
+    """The map J (3, 6) from the torso's velocity (v, w world) to a leg root's (v_s along u, v_z, omega about
+    u x e_z) at the corner offset ``rc``; its transpose takes the root's reaction (f_s, f_z, m) to the torso's
+    generalised force (force, moment about the centre)."""
+    jmap[:, :] = 0.0
+    jmap[0, 0] = ux
+    jmap[0, 1] = uy
+    jmap[0, 3] = -uy * rcz
+    jmap[0, 4] = ux * rcz
+    jmap[0, 5] = uy * rcx - ux * rcy
+    jmap[1, 2] = 1.0
+    jmap[1, 3] = rcy
+    jmap[1, 4] = -rcx
+    jmap[2, 3] = uy
+    jmap[2, 4] = -ux
+
+
+@njit(cache=True)
+def _add_leg_answer(jmap, response, h, xi, system, rhs6):
+    """Put a leg's reaction change S J (xi_new - xi) into the torso's step: system -= h J^T S J, rhs -= h J^T S J xi."""
+    for a in range(6):
+        for b in range(6):
+            g = 0.0
+            for r in range(3):
+                for c in range(3):
+                    g += jmap[r, a] * response[r, c] * jmap[c, b]
+            system[a, b] -= h * g
+            rhs6[a] -= h * g * xi[b]
+
+
+@njit(cache=True)
+def _answer(jmap, response, dxi, du, load, out, reaction):
+    """A leg's reaction at the torso's new velocity: R += S du with du = J dxi, into the torso's ``load``, the
+    leg's ``out`` (f_s, f_z, m) and its world ``reaction`` (force, moment)."""
+    for r in range(3):
+        du[r] = 0.0
+        for a in range(6):
+            du[r] += jmap[r, a] * dxi[a]
+    for r in range(3):
+        d = 0.0
+        for c in range(3):
+            d += response[r, c] * du[c]
+        out[r] += d  # O_FX, O_FZ, O_M
+        for a in range(6):
+            load[a] += jmap[r, a] * d
+        ux, uy = jmap[0, 0], jmap[0, 1]
+        if r == 0:
+            reaction[0] += d * ux
+            reaction[1] += d * uy
+        elif r == 1:
+            reaction[2] += d
+        else:
+            reaction[3] += d * uy
+            reaction[4] -= d * ux
+
+
+@njit(cache=True)
+def _follow_root(zcols, du, h, pos, vel, theta, omega):
+    """Move a leg's free nodes and elements by its answer to its root's change ``du``: velocities by z du,
+    positions and angles by h z du (the root node follows the corner at the next step)."""
+    n = pos.shape[0]
+    for i in range(1, n):
+        dvx = zcols[0, 3 * i] * du[0] + zcols[1, 3 * i] * du[1] + zcols[2, 3 * i] * du[2]
+        dvz = zcols[0, 3 * i + 1] * du[0] + zcols[1, 3 * i + 1] * du[1] + zcols[2, 3 * i + 1] * du[2]
+        vel[i, 0] += dvx
+        vel[i, 1] += dvz
+        pos[i, 0] += h * dvx
+        pos[i, 1] += h * dvz
+    for e in range(theta.shape[0]):
+        dw = zcols[0, 3 * e + 2] * du[0] + zcols[1, 3 * e + 2] * du[1] + zcols[2, 3 * e + 2] * du[2]
+        omega[e] += dw
+        theta[e] += h * dw
 
 
 @njit(cache=True)
@@ -413,6 +510,17 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
     root = np.zeros(6)
     vlat = np.zeros(n_nodes)
     saved = np.zeros((4, 3 * n_nodes - 1))  # the implicit step's Newton corrections and halvings (implicit_step)
+    # backward Euler (newton > 1): the torso takes each leg's answer to its root's velocity into its own step
+    # (root_response): the legs' velocity response (3 per leg), their reaction's (3 x 3), the map from the
+    # torso's velocity (v, w world) to the root's (v_s, v_z, omega), and which legs answered this step
+    answering = implicit and newton > 1 and not hold_torso
+    zcols = np.zeros((n_legs, 3, 3 * n_nodes - 1))
+    responses = np.zeros((n_legs, 3, 3))
+    jroot = np.zeros((n_legs, 3, 6))
+    answered = np.zeros(n_legs, dtype=np.bool_)
+    sub_h = np.zeros(n_legs)  # the step the answer is of (h, or h / m for a step retaken as m)
+    dxi = np.zeros(6)
+    du = np.zeros(3)
     f0s = np.zeros(n_nodes)  # a leg's pressed nodes' friction across the plane, and its slope
     slopes = np.zeros((n_legs, n_nodes))
     pulls = np.zeros(n_legs)  # per leg, the sum of its nodes' F0 + c v (the friction's affine part) ...
@@ -476,10 +584,18 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
             scratch = StepWork(force, moment, rhs, vflat, cth[i], sth[i])
             if implicit:
                 jac = JacobianState(lu[i], kband[i], jvec[i], jmeta[i])
-                implicit_step(
+                taken = implicit_step(
                     state, leg, par[i], free_length, root, vlat, h, normal[i], out[i], scratch, jac, max_age, newton,
                     saved,
                 )  # fmt: skip
+                # a step retaken as m shorter ones answers through its last: the leg's velocities by z du, its
+                # positions by h / m z du, the torso by the last one's reaction change over 1 / m of the step
+                answered[i] = answering and taken > 0
+                if answered[i]:
+                    sub_h[i] = h / taken
+                    root_response(state, leg, par[i], sub_h[i], jac, zcols[i], responses[i])
+                    responses[i] *= 1.0 / taken
+                    _root_map(ux, uy, rcx, rcy, rcz, jroot[i])
             else:
                 symplectic_once(
                     state, leg, inv_mass, inv_inertia, par[i], free_length, root, vlat, h, normal[i], out[i], scratch
@@ -578,7 +694,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
             continue
         belly[:] = 0.0
         for j in range(belly_points.shape[0]):
-            _belly_contact(belly_points[j], rot, torso[2], xi, belly_par, h, load, damp, belly)
+            _belly_contact(belly_points[j], rot, torso[2], xi, belly_par, h, load, damp, belly, answering)
         # momentum about the torso centre, plus the step's impulse; the friction's slope implicit:
         # (A + h C) xi_new = A xi + h (load - C xi)... written with load holding F0 + C xi
         for a in range(6):
@@ -590,7 +706,19 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
                 acc += aug[a, b] * xi[b]
                 system[a, b] = aug[a, b] + damp[a, b]
             rhs6[a] = acc + h * load[a]
-        solve_spd(system, rhs6, xi_new)
+        if answering:
+            # the legs' reactions at the torso's new velocity: R + S J (xi_new - xi), each as J^T R on the torso
+            for i in range(n_legs):
+                if answered[i]:
+                    _add_leg_answer(jroot[i], responses[i], h, xi, system, rhs6)
+            xi_new[:] = np.linalg.solve(system, rhs6)
+            for a in range(6):
+                dxi[a] = xi_new[a] - xi[a]
+            for i in range(n_legs):
+                if answered[i]:
+                    _answer(jroot[i], responses[i], dxi, du, load, out[i], reaction[i])
+        else:
+            solve_spd(system, rhs6, xi_new)
         # the impulse applied, friction at the velocity it ends with: h load - h C xi_new
         for a in range(6):
             acc = 0.0
@@ -618,6 +746,13 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
                 u = lat_v + (pos[i, k, 1] - p2) * turn + (w0 + pos[i, k, 0]) * xi_new[5]
                 eta[i, k] += h * u
                 pulled += slopes[i, k] * u
+            if answering and answered[i]:
+                # the leg follows its root's change over the step, as its answer said
+                for r in range(3):
+                    du[r] = 0.0
+                    for a in range(6):
+                        du[r] += jroot[i, r, a] * dxi[a]
+                _follow_root(zcols[i], du, sub_h[i], pos[i], vel[i], theta[i], omega[i])
             if k_lat > 0.0:
                 # the massless patch: spring k (d + h d') = friction sum(F0 + c v) - sum(c j . xi_new) - C d'
                 rate = (pulls[i] - pulled - k_lat * lateral[i, 0]) / (k_lat * h + grips[i])

@@ -50,6 +50,7 @@ from .params import (
     O_T,
     O_TS,
     OUT,
+    P_C,
     P_G,
     P_GROUND,
     P_K,
@@ -75,7 +76,7 @@ from .rod import (
 # The implicit step's Jacobian bookkeeping ``jmeta`` (:func:`jacobian_state`): each node's contact regime (N
 # entries), then these, counted from N: the cable's state, the factorisation's age in steps, 1 + g^T W^-1 u,
 # the step it was made with, and how many factorisations the leg has made.
-J_CABLE, J_AGE, J_GZ, J_STEP, J_COUNT = range(5)
+J_CABLE, J_AGE, J_GZ, J_STEP, J_COUNT, J_OFFSET = range(6)  # J_OFFSET: the pulling cable's offset at the factoring
 # m: a Newton correction that moves no position by more than this ends the step's iterations (implicit_step)
 NEWTON_TOL = 1e-7
 TANGENT_PASSES = 4  # Newton corrections that linearise the friction by its tangent; later ones by its secant
@@ -467,6 +468,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         jmeta[i_step] = h
         jmeta[i_age] = 0.0
         jmeta[n + J_COUNT] += 1.0
+        jmeta[n + J_OFFSET] = offset
     jmeta[i_age] += 1.0
     if not correction:
         # - h^2 K v, with the K the factorisation was made with
@@ -602,11 +604,12 @@ def implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work
     and a switch within the step (a node landing, a foot sticking, a cable going slack) it sees only a step
     late: at millisecond steps the overshoot grew from step to step (the loaded leg diverged at 1.5 ms).
     Backward Euler itself is stable there; the corrections solve it, and the halving keeps a switch the
-    corrections cannot resolve from spoiling the step. ``saved`` (4, 3N - 1) is scratch.
+    corrections cannot resolve from spoiling the step. ``saved`` (4, 3N - 1) is scratch. Returns the number
+    of steps taken (1 unless halved).
     """
     if newton <= 1:
         implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, 0, saved[0])
-        return
+        return 1
     start = saved[2:4]  # the step's start, kept while a halving retakes it (saved[0:2] serve each step)
     sub_root = np.empty(6)
     end = np.empty(6)
@@ -642,7 +645,93 @@ def implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work
             out[O_FX] = sums[0] / m
             out[O_FZ] = sums[1] / m
             out[O_M] = sums[2] / m
-            return
+            return m
+    return 0
+
+
+@njit(cache=True)
+def root_response(state, leg, par, h, jac, zcols, response):
+    """How the leg's step just taken answers a change of its root's velocity over the step, to first order.
+
+    For a unit change of each of the root's (v_s, v_z, omega) (the columns): ``zcols`` (3, 3N - 1) the
+    leg's velocities (root rows: the change itself) and ``response`` (3, 3) the reaction on the root
+    (f_s, f_z, m; rows). They come from the step's last linearisation (the factored W kept in ``jac``):
+    the root node's velocity, the clamp's angle, the damping's rigid motion and the cable's length at
+    the root all move with the root, W z = b solves for the nodes, and the reaction is the step's own
+    reaction formula on that change. So a torso that takes the legs' answer into its own step
+    (:func:`slotexp.soft.coupled.coupled_steps`) and moves each leg by z times its root's change
+    exchanges momentum with them exactly, and sees the legs' stiffness and damping within the step.
+    """
+    pos, _, theta, _ = state
+    _, _, _, voronoi, _, _, _, ei, mass, inertia = leg
+    lu, kband, jvec, jmeta = jac
+    n = pos.shape[0]
+    n_el = theta.shape[0]
+    nd = 3 * n - 1
+    c = par[P_C]
+    k0 = ei[0] / voronoi[0]
+    taut = abs(jmeta[n + J_CABLE]) == 1.0
+    offset = jmeta[n + J_OFFSET]
+    k_t = par[P_TK]
+    smu = jvec[0]
+    g = jvec[1]
+    for col in range(3):
+        z = zcols[col]
+        z[:] = 0.0
+        dvs = 1.0 if col == 0 else 0.0
+        dvz = 1.0 if col == 1 else 0.0
+        dw = 1.0 if col == 2 else 0.0
+        z[0] = dvs
+        z[1] = dvz
+        for i in range(1, n):  # the damping pulls towards the root frame's rigid motion
+            z[3 * i] += h * c * mass[i] * (dvs - dw * (pos[i, 1] - pos[0, 1]))
+            z[3 * i + 1] += h * c * mass[i] * (dvz + dw * (pos[i, 0] - pos[0, 0]))
+        for e in range(n_el):
+            z[3 * e + 2] += h * c * inertia[e] * dw
+        z[2] += h * h * k0 * dw  # the clamp turns
+        if taut:  # the cable's length at the root turns with it
+            for d in range(2, nd):
+                z[d] += h * h * k_t * offset * dw * g[d]
+        banded_substitute(lu, z)
+        if taut:
+            gy = 0.0
+            for d in range(nd):
+                gy += g[d] * z[d]
+            ratio = gy / jmeta[n + J_GZ]
+            for d in range(nd):
+                z[d] -= ratio * smu[d]
+        # the reaction: the root rows of h^2 K, the damping's reaction, the cable's share, the clamp's moment
+        d0 = 0.0
+        d1 = 0.0
+        for k in range(4, 9):
+            d0 += kband[0, k] * z[k - 4]
+        for k in range(3, 9):
+            d1 += kband[1, k] * z[k - 3]
+        fs = -d0 / h
+        fz = -d1 / h
+        px = pz = mom = 0.0
+        for i in range(1, n):
+            qx = mass[i] * (z[3 * i] - (dvs - dw * (pos[i, 1] - pos[0, 1])))
+            qz = mass[i] * (z[3 * i + 1] - (dvz + dw * (pos[i, 0] - pos[0, 0])))
+            px += qx
+            pz += qz
+            mom += (pos[i, 0] - pos[0, 0]) * qz - (pos[i, 1] - pos[0, 1]) * qx
+        for e in range(n_el):
+            mom += inertia[e] * (z[3 * e + 2] - dw)
+        fs += c * px
+        fz += c * pz
+        m_root = c * mom + k0 * h * (z[2] - dw)
+        if taut:
+            gz = 0.0
+            for d in range(nd):
+                gz += g[d] * z[d]
+            stretch = gz - offset * dw
+            fs -= h * k_t * g[0] * stretch
+            fz -= h * k_t * g[1] * stretch
+            m_root += k_t * h * stretch * offset
+        response[0, col] = fs
+        response[1, col] = fz
+        response[2, col] = m_root
 
 
 def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:
@@ -650,7 +739,7 @@ def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:
     the first step factors."""
     nd = 3 * n_nodes - 1
     lead = () if legs is None else (legs,)
-    meta = np.zeros(lead + (n_nodes + J_COUNT + 1,))
+    meta = np.zeros(lead + (n_nodes + J_OFFSET + 1,))
     meta[..., n_nodes + J_AGE] = np.inf  # refresh at the first step
     return JacobianState(np.zeros(lead + (nd, 9)), np.zeros(lead + (nd, 9)), np.zeros(lead + (2, nd)), meta)
 
