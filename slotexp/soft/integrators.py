@@ -125,6 +125,19 @@ def _friction_newton_slope(vs, vlat, nrm, mu, v_eps, mu_s, v_s, tangent):
     return mu * nrm * vlat * vlat / (speed * speed * speed)
 
 
+@njit(cache=True)
+def _root_rows(kband, x):
+    """The root node's two rows of the band ``kband`` (h^2 K) times ``x``: what moving the nodes by h x changes
+    in the force on the root (its reaction, times -h)."""
+    d0 = 0.0
+    d1 = 0.0
+    for k in range(4, 9):
+        d0 += kband[0, k] * x[k - 4]
+    for k in range(3, 9):
+        d1 += kband[1, k] * x[k - 3]
+    return d0, d1
+
+
 class LegState(NamedTuple):
     """One leg's dynamic state: node positions and velocities (N, 2), element angles and rates (E,)."""
 
@@ -512,12 +525,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         theta[e] += h * x[3 * e + 2]
     # reaction on the root, consistent with the implicit step (momentum is exchanged exactly): the root
     # rows of h^2 (elastic + tendon) K
-    d0 = 0.0
-    d1 = 0.0
-    for k in range(4, 9):
-        d0 += kband[0, k] * x[k - 4]
-    for k in range(3, 9):
-        d1 += kband[1, k] * x[k - 3]
+    d0, d1 = _root_rows(kband, x)
     out[O_FX] -= d0 / h
     out[O_FZ] -= d1 / h
     tension_end = tension
@@ -701,12 +709,7 @@ def root_response(state, leg, par, h, jac, zcols, response):
             for d in range(nd):
                 z[d] -= ratio * smu[d]
         # the reaction: the root rows of h^2 K, the damping's reaction, the cable's share, the clamp's moment
-        d0 = 0.0
-        d1 = 0.0
-        for k in range(4, 9):
-            d0 += kband[0, k] * z[k - 4]
-        for k in range(3, 9):
-            d1 += kband[1, k] * z[k - 3]
+        d0, d1 = _root_rows(kband, z)
         fs = -d0 / h
         fz = -d1 / h
         px = pz = mom = 0.0
