@@ -545,7 +545,8 @@ def _alive(pid: int) -> bool:
 
 def _spawn(args: list[str], cwd: Path) -> subprocess.Popen:
     """``slot`` in its own session, as from a terminal: a test run started in the background ignores SIGINT,
-    and an ignored SIGINT is inherited, so the run would rightly never see the Ctrl-C it is sent."""
+    and under nohup SIGHUP, and an ignored signal is inherited, so the run would rightly never see the Ctrl-C
+    or the hang-up it is sent (slot leaves nohup's SIGHUP ignored)."""
     return subprocess.Popen(
         args,
         cwd=cwd,
@@ -553,8 +554,13 @@ def _spawn(args: list[str], cwd: Path) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        preexec_fn=_as_from_a_terminal,
     )
+
+
+def _as_from_a_terminal() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=["SIGTERM", "SIGINT", "SIGHUP"])
