@@ -518,11 +518,47 @@ def visible_on_the_fit() -> list[str]:
     return [a for a in heldout_on_the_fit() if not a.startswith("experiment.schedules=")]
 
 
+def _on_the_robust_fit(name: str | None = None, factor: float = 1.0):
+    """The visible gaits on the robust fit (results/identify_robot_robust_offset/fit.yaml), with one fitted
+    setting ``name`` scaled by ``factor``: is the fit robust in every setting it fitted, not only in the two
+    its cost charged (E and friction)?"""
+
+    def args() -> list[str]:
+        import yaml
+
+        fit = yaml.safe_load((ROOT / "results" / "identify_robot_robust_offset" / "fit.yaml").read_text())
+        values = []
+        for key, value in fit["overrides"].items():
+            scale = factor if key == name else 1.0
+            if isinstance(value, list):
+                values.append(f"{key}=[{','.join(f'{x * scale:g}' for x in value)}]")
+            else:
+                values.append(f"{key}={value * scale:g}")
+        return ["experiment=replay", "plant=cosserat", "experiment.gif=false", *values]
+
+    return args
+
+
+ROBUST_FITTED = (
+    "robot.contact.friction",
+    "robot.servo.horn_zero_deg",
+    "robot.leg.youngs_modulus",
+    "robot.leg.damping_per_s",
+    "robot.leg.pulley_radius",
+    "robot.tendon.offset",
+)
+
 # runs whose arguments come from an earlier run's outputs (made after it)
 DERIVED = {
     "simulate_cosserat_walk_open_loop_mean_command": mean_walk_command,
     "replay_fit": visible_on_the_fit,
     "replay_heldout_fit": heldout_on_the_fit,
+    "replay_robust_fit": _on_the_robust_fit(),
+    **{
+        f"replay_robust_fit_{name.rsplit('.', 1)[1]}_x{factor:g}": _on_the_robust_fit(name, factor)
+        for name in ROBUST_FITTED
+        for factor in (0.9, 1.1)
+    },
 }
 
 # Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
