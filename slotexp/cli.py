@@ -10,6 +10,7 @@ from inside a job.
 from __future__ import annotations
 
 import errno
+import functools
 import itertools
 import logging
 import os
@@ -18,7 +19,7 @@ import sys
 import tempfile
 import time
 import types
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -680,7 +681,25 @@ def compose_config(overrides: list[str]) -> SlotConfig:  # noqa: F821
         return load_config(compose("config", overrides=overrides))
 
 
+def _stoppable(command: Callable[..., None]) -> Callable[..., None]:
+    """A command that runs outside a Hydra job ends on a stop signal as ``slot run`` does: one line naming the
+    signal and exit 128 + its number. (Typer turns a KeyboardInterrupt into a silent exit 130 whatever the
+    signal was; a SystemExit passes it.)"""
+
+    @functools.wraps(command)
+    def stoppable(*args, **kwargs) -> None:
+        try:
+            command(*args, **kwargs)
+        except KeyboardInterrupt as exc:
+            signum, word = _stopped_by(exc)
+            typer.echo(word, err=True)
+            raise SystemExit(128 + signum) from None
+
+    return stoppable
+
+
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+@_stoppable
 def bench(
     ctx: typer.Context,
     out: Path = typer.Option(None, "--out", help="Output directory (default experiments/bench/<timestamp>)."),
@@ -719,6 +738,7 @@ def bench(
 
 
 @app.command()
+@_stoppable
 def figures(
     run_dir: Path = typer.Argument(..., help="A run's output directory (holding logs/*.mcap)."),
     force: bool = typer.Option(
@@ -773,6 +793,7 @@ def figures(
 
 
 @app.command()
+@_stoppable
 def layout(
     out: Path = typer.Argument(Path("slot_layout.json"), help="Where to write the layout (a .json file)."),
 ) -> None:
@@ -796,6 +817,7 @@ def layout(
 
 
 @app.command()
+@_stoppable
 def summarize(
     multirun_dir: Path = typer.Argument(..., help="A multirun's output directory (slot run -m ...)."),
 ) -> None:

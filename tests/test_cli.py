@@ -586,6 +586,46 @@ def test_a_stop_signal_to_the_parent_alone_stops_every_worker_and_closes_every_l
     assert not (run_dir / "logs" / "pitch.mcap").exists()  # queued, never started
 
 
+def test_slot_bench_stopped_by_sigterm_exits_143_with_one_line(tmp_path: Path) -> None:
+    # Typer turned every stop outside a Hydra job into a silent exit 130 (a SIGTERM from a timeout or SLURM
+    # read as a Ctrl-C); slot bench, figures, layout and summarize now end as slot run does
+    proc = _spawn([*SLOT_CMD, "bench", "leg", "--out", str(tmp_path / "bench")], tmp_path)
+    try:
+        time.sleep(10.0)  # started and measuring (the leg bench runs for minutes)
+        assert proc.poll() is None, proc.stderr.read()
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+    assert proc.returncode == 128 + signal.SIGTERM, stderr
+    assert stderr.strip().splitlines()[-1] == "terminated", stderr
+    assert "Traceback" not in stderr
+
+
+@pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGTERM, signal.SIGINT])
+def test_a_command_outside_a_hydra_job_ends_on_each_stop_signal_with_its_code(capsys, monkeypatch, signum) -> None:
+    import slotexp.cli
+    from slotexp.cli import _stoppable, _terminate
+
+    monkeypatch.setattr(slotexp.cli, "_received", [])  # this process's signals so far: none
+
+    @_stoppable
+    def command() -> None:
+        signal.raise_signal(signum)
+
+    previous = signal.signal(signum, _terminate if signum != signal.SIGINT else signal.default_int_handler)
+    try:
+        with pytest.raises(SystemExit) as stopped:
+            command()
+    finally:
+        signal.signal(signum, previous)
+    assert stopped.value.code == 128 + signum
+    word = {signal.SIGTERM: "terminated", signal.SIGHUP: "hung up"}.get(signum, "interrupted")
+    assert capsys.readouterr().err.strip() == word
+
+
 def _stop_parent_once_logging(proc: subprocess.Popen, logs: list[Path], signum: int) -> tuple[str, str]:
     """Send ``signum`` to ``proc``'s PID alone once every log has data; check the exit, the one line on
     stderr, that no worker outlives it and that every log reads completely. Returns (stdout, stderr)."""
