@@ -437,7 +437,10 @@ def _hydra_task(cfg) -> None:
 
     from .controllers._gait import envelope_warning
     from .jobs import EXPERIMENTS, run_experiment
+    from .signals import die_with_parent, is_sweep_worker
 
+    if is_sweep_worker():
+        die_with_parent()  # a sweep's job ends with its parent, SIGKILL included
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         with _one_line_failures(out_dir):
@@ -457,8 +460,6 @@ def _hydra_task(cfg) -> None:
         signum, word = _stopped_by(exc)
         typer.echo(f"{word}: the logs written so far are valid and readable in {out_dir}", err=True)
         typer.echo(str(out_dir))
-        from .signals import is_sweep_worker
-
         if is_sweep_worker():  # the log is closed: end the job process, which the sweep's parent waits for
             sys.stdout.flush()
             sys.stderr.flush()

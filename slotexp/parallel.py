@@ -33,6 +33,7 @@ from typing import Any, Protocol
 
 from .config import choice_field, num_field
 from .errors import ConfigError
+from .signals import die_with_parent
 
 ENGINES = ("processes", "dask")
 
@@ -115,7 +116,7 @@ def pool(cfg: ParallelConfig, max_tasks: int) -> Iterator[Pool]:
     if workers == 1:
         yield _InProcess()
         return
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as executor:
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=die_with_parent) as executor:
         yield _Processes(executor, workers)
 
 

@@ -191,6 +191,28 @@ def become_sweep_parent() -> None:
             signal.signal(signum, stop_jobs)
 
 
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def die_with_parent(parent: int | None = None) -> None:
+    """Have the kernel send this process SIGTERM when its parent dies, however it dies (SIGKILL included), so
+    a sweep's or a search's workers never outlive the command that started them. Linux only (``prctl``); a
+    no-op elsewhere. If the parent (``parent``, or the one we have now) is already gone, stop at once.
+
+    Why not polling the parent: a worker deep in a compiled kernel polls nothing; the kernel's signal arrives
+    anyway, and a sweep's job takes SIGTERM between MPC steps, closing its log."""
+    expected = os.getppid() if parent is None else parent
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    except (OSError, AttributeError):  # not Linux: the parent's own handlers still stop its workers
+        return
+    if os.getppid() != expected:  # the parent died before the request was in place
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 def is_sweep_worker() -> bool:
     """Whether this process runs a sweep's job on the parent's behalf (a launcher worker, not the parent)."""
     parent = os.environ.get(PARENT_ENV)

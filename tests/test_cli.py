@@ -22,7 +22,7 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from slotexp.record import read_log
+from slotexp.record import is_closed, read_log
 from slotexp.signals import child_processes
 from tests.helpers import CONF, SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot, slot_after
 
@@ -690,6 +690,46 @@ def test_a_stop_signal_to_a_sweeps_parent_closes_every_running_jobs_log_and_star
         time.sleep(0.1)
     _stop_parent_once_logging(proc, logs, signal.SIGTERM)
     assert not list(sweep.glob("2_*")), "a job queued behind the running two was started"
+
+
+def test_a_sweeps_jobs_end_when_its_parent_is_killed(tmp_path: Path) -> None:
+    # SIGKILL leaves the parent no handler to pass anything on: the kernel tells each job (prctl's parent-death
+    # signal, SIGTERM), which stops at its next MPC step with its log closed
+    sweep = tmp_path / "sweep"
+    proc = _spawn(
+        [
+            *SLOT_CMD,
+            "run",
+            "-m",
+            "experiment=simulate",
+            "gait=walk,crawl",
+            "experiment.duration=600",
+            "hydra.launcher.n_jobs=2",
+            f"hydra.sweep.dir={sweep}",
+        ],
+        tmp_path,
+    )
+    try:
+        deadline = time.monotonic() + 120  # until both jobs are logging
+        logs: list[Path] = []
+        while time.monotonic() < deadline and not (len(logs) == 2 and all(p.stat().st_size > 100_000 for p in logs)):
+            logs = sorted(sweep.glob("*/logs/*.mcap"))
+            time.sleep(0.1)
+        assert proc.poll() is None, proc.stderr.read()
+        jobs = [pid for pid in child_processes(proc.pid) if "resource_tracker" not in _cmdline(pid)]
+        assert jobs
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.communicate(timeout=60)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and any(_alive(pid) for pid in jobs):
+            time.sleep(0.1)
+        assert not [pid for pid in jobs if _alive(pid)], "a job outlived its sweep's parent"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+    for log in logs:
+        assert is_closed(log), f"{log} was cut short"
 
 
 # --------------------------------------------------------------------------- an output directory is never reused

@@ -203,3 +203,40 @@ def test_a_robust_fit_costs_each_candidate_its_worst_run_under_the_perturbations
     assert perturbed(plain, model) == [model]  # no robust parameters: the candidate alone
     with pytest.raises(ConfigError, match="robust.parameters: robot.leg.names is not a numeric setting"):
         load(*args, "experiment.robust.parameters=[robot.leg.names]")
+
+
+def test_a_search_pools_workers_end_when_the_search_is_killed(tmp_path: Path):
+    # gait_search and identify evaluate candidates in a pool of spawned processes; killed outright (SIGKILL, no
+    # handler runs), the search takes its workers with it (prctl's parent-death signal, slotexp/signals.py)
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+
+    script = (
+        "import time\n"
+        "from slotexp.parallel import ParallelConfig, pool\n"
+        "with pool(ParallelConfig(workers=2), 2) as p:\n"
+        "    p.map(time.sleep, [120, 120])\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 60
+        workers: list[psutil.Process] = []
+        while time.monotonic() < deadline and len(workers) < 2:
+            workers = [
+                c for c in psutil.Process(proc.pid).children() if "resource_tracker" not in " ".join(c.cmdline())
+            ]
+            time.sleep(0.1)
+        assert len(workers) == 2
+        time.sleep(1.0)  # past the workers' initializer
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        _, alive = psutil.wait_procs(workers, timeout=20)
+        assert not alive, "a worker outlived its search"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
