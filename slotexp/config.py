@@ -615,6 +615,13 @@ def check_fields(cfg: SlotConfig) -> SlotConfig:
         raise ConfigError(
             f"mpc.f_min_stance = {cfg.mpc.f_min_stance:g} N exceeds mpc.f_max = {cfg.mpc.f_max:g} N: lower it"
         )
+    servo = cfg.robot.servo
+    for i, leg_name in enumerate(leg.names):
+        if servo.horn_min_deg[i] >= servo.horn_max_deg[i]:
+            raise ConfigError(
+                f"robot.servo.horn_min_deg = {servo.horn_min_deg[i]:g} deg is not below horn_max_deg = "
+                f"{servo.horn_max_deg[i]:g} deg for {leg_name}: give the servo's range low to high"
+            )
     for name, schedule in cfg.schedules.items():
         check_schedule(cfg, name, schedule)
     return cfg
@@ -660,6 +667,27 @@ def check_schedule(cfg: SlotConfig, name: str, schedule: ScheduleConfig) -> None
         for leg, angle in step.items():
             if not math.isfinite(angle) or not -360.0 <= angle <= 360.0:
                 raise ConfigError(f"schedules.{name}.steps[{k}].{leg} = {angle!r} is not an angle in [-360, 360] deg")
+
+
+def check_schedule_reach(cfg: SlotConfig, name: str) -> None:
+    """Every angle of the schedule a run plays is one the servo can reach: inside its position limits
+    (``robot.servo.horn_min_deg``/``horn_max_deg``, the robot's own 10-350 deg), a tendon angle through the
+    horn map. An angle outside is refused, not clipped: a clipped step is not the gait that was written.
+    (Checked where a schedule is played, so narrower limits refuse only the schedules a run uses.)"""
+    legs = list(cfg.robot.leg.names)
+    servo = cfg.robot.servo
+    schedule = cfg.schedules[name]
+    for k, step in enumerate(schedule.steps):
+        for leg, angle in step.items():
+            i = legs.index(leg)
+            horn = angle if schedule.units == "horn" else servo.horn_zero_deg[i] + servo.horn_direction[i] * angle
+            lo, hi = servo.horn_min_deg[i], servo.horn_max_deg[i]
+            if not lo <= horn <= hi:
+                what = f"{angle:g} deg" if schedule.units == "horn" else f"{angle:g} deg of tendon (horn {horn:g} deg)"
+                raise ConfigError(
+                    f"schedules.{name}.steps[{k}].{leg} = {what} is outside the servo's range {lo:g}-{hi:g} deg "
+                    f"(robot.servo.horn_min_deg, horn_max_deg): give an angle the servo can reach"
+                )
 
 
 def check_schedule_ticks(cfg: SlotConfig, schedule: ScheduleConfig, rate_hz: float, key: str) -> None:

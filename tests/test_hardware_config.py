@@ -43,7 +43,7 @@ def test_hardware_config_composes_with_the_simulation_settings() -> None:
         ("robot.servo.horn_direction=[1,0,1,1]", ["hardware.direction[1]"]),
         ("hardware.zero_offset_deg=[96,96,96,96]", ["hardware.zero_offset_deg", "robot.servo.horn_zero_deg"]),
         ("hardware.baudrate=12345", ["hardware.baudrate", "1000000"]),
-        ("robot.servo.horn_min_deg=[130,355,130,130]", ["min_position_deg[1]"]),
+        ("robot.servo.horn_min_deg=[130,355,130,130]", ["robot.servo.horn_min_deg", "RL"]),
         ("robot.servo.horn_max_deg=[250,250,250,400]", ["horn_max_deg[3]"]),
         ("odometry=replay", ["odometry.path"]),
         ("odometry.endpoint=localhost:5556", ["odometry.endpoint"]),

@@ -76,6 +76,28 @@ def test_a_schedule_whose_steps_miss_the_controller_ticks_is_refused():
         load("experiment=replay")
 
 
+def test_a_schedule_angle_the_servo_cannot_reach_is_refused_not_clipped():
+    # a clipped step is not the gait that was written: the horn range is the robot's own 10-350 deg. Checked
+    # where a schedule is played (controller=schedule, experiment=replay, identify, a search's start_from)
+    step = "{FL: %s, RL: 210.0, RR: 210.0, FR: 210.0}"
+    played = ("plant=cosserat", "controller=schedule", "controller.schedule=forward", "mpc.rate_hz=50")
+    for angle in (355.0, 5.0, -50.0):
+        with pytest.raises(ConfigError, match=rf"steps\[0\]\.FL = {angle:g} deg is outside the servo's range 10-350"):
+            load(*played, f"schedules.forward.steps=[{step % angle}]")
+        load(f"schedules.forward.steps=[{step % angle}]")  # not played: not refused
+    load(*played, f"schedules.forward.steps=[{step % 10.0}]")  # the range's ends are reachable
+    load(*played, f"schedules.forward.steps=[{step % 350.0}]")
+    replayed = ("plant=cosserat", "experiment=replay", "experiment.schedules=[forward]")
+    with pytest.raises(ConfigError, match="outside the servo's range"):
+        load(*replayed, f"schedules.forward.steps=[{step % 5.0}]")
+    # in tendon units through the horn map (zero 130 deg): 300 deg of tendon is horn 430
+    tendon = f"schedules.forward.steps=[{step % 300.0}]".replace("210.0", "80.0")
+    with pytest.raises(ConfigError, match=r"300 deg of tendon \(horn 430 deg\) is outside the servo's range"):
+        load(*played, "schedules.forward.units=tendon", tendon)
+    with pytest.raises(ConfigError, match="horn_min_deg = 360 deg is not below horn_max_deg = 350 deg for FL"):
+        load("robot.servo.horn_min_deg=[360,10,10,10]")
+
+
 def test_a_schedule_sends_the_same_goal_ticks_to_the_servos_as_to_the_soft_plant(tmp_path: Path):
     # The same schedule, played by the soft plant and by `slot hardware` against the servo emulator: the
     # tendon command at each tick is the schedule's, and the servos receive its horn angles as ticks.

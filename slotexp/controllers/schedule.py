@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..config import ControllerConfig, SlotConfig, check_schedule_ticks
+from ..config import ControllerConfig, SlotConfig, check_schedule_reach, check_schedule_ticks
 from ..errors import ConfigError
 from ..gait import contact_plan
 from ..locomotion.schedules import schedule_tendon_deg, step_index
@@ -47,6 +47,7 @@ class ScheduleController(MpcController):
                 f"{', '.join(sorted(cfg.schedules)) or '(none)'} (conf/schedule/)"
             )
         check_schedule_ticks(cfg, cfg.schedules[cfg.controller.schedule], cfg.mpc.rate_hz, "mpc.rate_hz")
+        check_schedule_reach(cfg, cfg.controller.schedule)
 
     @classmethod
     def gait_cycle_steps(cls, cfg: SlotConfig) -> int:

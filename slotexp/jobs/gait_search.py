@@ -28,7 +28,7 @@ import pandas as pd
 import yaml
 
 from ..atomic import write_csv, write_json, write_text
-from ..config import GaitStyleConfig, PrimitiveConfig, SlotConfig, check_library, num_field
+from ..config import GaitStyleConfig, PrimitiveConfig, SlotConfig, check_library, check_schedule_reach, num_field
 from ..errors import ConfigError
 from ..locomotion.heading import lean_pattern
 from ..locomotion.openloop import GaitMetrics, run_gait
@@ -92,6 +92,8 @@ class GaitSearchExperiment:
                 f"experiment.start_from = {self.start_from!r} is neither a {self.style} primitive nor a schedule: "
                 f"choose one of {', '.join(names)}, or a schedule ({', '.join(cfg.schedules)})"
             )
+        if self.start_from is not None and self.start_from not in names:
+            check_schedule_reach(cfg, self.start_from)
         if self.settle >= self.duration:
             raise ConfigError(
                 f"experiment.settle = {self.settle:g} s leaves nothing of experiment.duration = "

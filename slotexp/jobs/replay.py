@@ -23,7 +23,15 @@ import numpy as np
 import pandas as pd
 
 from ..atomic import write_csv, write_json, write_text
-from ..config import ConfigError, ScheduleConfig, SlotConfig, check_run_length, check_schedule_ticks, num_field
+from ..config import (
+    ConfigError,
+    ScheduleConfig,
+    SlotConfig,
+    check_run_length,
+    check_schedule_reach,
+    check_schedule_ticks,
+    num_field,
+)
 from ..controllers.schedule import ScheduleControllerConfig
 from ..locomotion.schedules import cycle_s, foot_strokes, gait_metrics, with_profile_velocity, wrap_deg
 from ..runlog import find_logs, load_run
@@ -69,6 +77,7 @@ def check_played_schedules(
                 f"{', '.join(sorted(cfg.schedules))} (conf/schedule/)"
             )
         check_schedule_ticks(cfg, cfg.schedules[name], rate_hz, "experiment.rate_hz")
+        check_schedule_reach(cfg, name)
         check_whole_cycle(cfg.schedules[name], duration, measure_from_s)
 
 
