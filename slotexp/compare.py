@@ -283,7 +283,35 @@ def load_marker_csv(path: str | Path) -> Trajectory:
             for k, a in enumerate(AXES):
                 pos[marker][i, k] = _parse_cell(fields[axes[a]], where, lineno, header[axes[a]], allow_empty=True)
         prev_line = lineno
+    _check_plausible(where, t, pos)
     return Trajectory(t=t, markers=pos)
+
+
+ROOM_M = 20.0  # m: no marker of a tabletop robot's run is farther than this from the origin
+DAY_S = 86400.0  # s: no run lasts longer
+
+
+def _check_plausible(where: str, t: np.ndarray, pos: dict[str, np.ndarray]) -> None:
+    """A track is in metres and seconds and tracked at all: what a CSV in millimetres or milliseconds, or an
+    export with every cell empty, would otherwise turn silently into wrong numbers (an RMSE of 40 m)."""
+    for marker, xyz in pos.items():
+        tracked = np.isfinite(xyz).all(axis=1)
+        if not tracked.any():
+            raise TrajectoryError(
+                f"{where}: marker {marker!r} has no tracked sample (every row has an empty or nan cell): "
+                "check the export, or drop its columns"
+            )
+        largest = float(np.nanmax(np.abs(xyz)))
+        if largest > ROOM_M:
+            raise TrajectoryError(
+                f"{where}: marker {marker!r} reaches {largest:.4g} from the origin, beyond a room ({ROOM_M:g} m): "
+                "positions are in metres (a CSV in millimetres needs dividing by 1000)"
+            )
+    if t[-1] - t[0] > DAY_S:
+        raise TrajectoryError(
+            f"{where}: t spans {t[-1] - t[0]:.4g}, more than a day: times are in seconds (a CSV in milliseconds "
+            "needs dividing by 1000)"
+        )
 
 
 def _parse_cell(cell: str, where: str, lineno: int, column: str, *, allow_empty: bool) -> float:

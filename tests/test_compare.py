@@ -261,6 +261,9 @@ _HEADER = "t,com_x,com_y,com_z"
         (f"{_HEADER}\n0,0,0,0\n,0,0,0\n", "line 3, column 't'"),
         (f"{_HEADER}\n0,0,0,0\n1,0,0\n", "line 3"),
         ("t,com_x,com_y,com_z,bad-name\n0,0,0,0,0\n1,0,0,0,0\n", "bad-name"),
+        (f"{_HEADER}\n0,,,\n1,nan,nan,nan\n", "no tracked sample"),  # an export with nothing tracked
+        (f"{_HEADER}\n0,100,-30,40\n1,250,-30,40\n", "millimetres"),  # positions in mm: 0.25 m read as 250 m
+        (f"{_HEADER}\n0,0,0,0\n100000,0,0,0\n", "milliseconds"),  # times in ms: 100 s read as 28 hours
     ],
     ids=[
         "empty",
@@ -275,6 +278,9 @@ _HEADER = "t,com_x,com_y,com_z"
         "empty-t",
         "short-row",
         "bad-column",
+        "nothing-tracked",
+        "millimetres",
+        "milliseconds",
     ],
 )
 def test_csv_errors_are_one_line_and_name_the_file(tmp_path: Path, content: str, expected: str) -> None:

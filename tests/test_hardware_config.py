@@ -167,6 +167,19 @@ def test_malformed_odometry_is_rejected(msg) -> None:
         sample_from_message(msg, 0.0)
 
 
+@pytest.mark.parametrize(
+    ("key", "value", "words"),
+    [("position", [1e300, 0, 0.04], "beyond a room"), ("position", [1500.0, 0, 40.0], "beyond a room"),
+     ("linear_velocity", [0, 20.0, 0], "faster than 5 m/s")],
+)  # fmt: skip
+def test_odometry_out_of_a_rooms_scale_is_refused_with_its_units(key, value, words) -> None:
+    # x = 1e300 m once ran the whole hardware loop and reported speed 0; a position in mm reads 1000x too far
+    msg = {"t": 0, "position": [0, 0, 0.04], "orientation": [0, 0, 0, 1], "linear_velocity": [0, 0, 0]}
+    msg |= {"angular_velocity": [0, 0, 0], key: value}
+    with pytest.raises(ValueError, match=words):
+        sample_from_message(msg, 0.0)
+
+
 # --------------------------------------------------------------------------- deadlines
 class FakeClock:
     def __init__(self) -> None:

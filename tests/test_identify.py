@@ -163,6 +163,8 @@ def _power(task: tuple[int, float]) -> float:
         ("experiment.parallel.address=tcp://localhost:1", ["engine=dask"]),
         ("experiment.height_mm=-40", ["height_mm = -40", "mm above the floor"]),
         ("experiment.schedules=[forward,walk_60]", ["walk_60", "held-out"]),
+        # a range the setting itself refuses would write a fit the tool refuses to run
+        ("experiment.parameters=[{path: robot.contact.friction, lo: -1, hi: 1}]", ["-1 to 1", "narrow the range"]),
     ],
 )
 def test_bad_identification_settings_get_one_line(tmp_path: Path, override: str, names: list[str]):
@@ -240,3 +242,37 @@ def test_a_search_pools_workers_end_when_the_search_is_killed(tmp_path: Path):
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+@pytest.mark.parametrize(
+    ("rows", "words"),
+    [
+        ("", ["observes nothing", "0 rows"]),
+        ("forward,,\ncrawl_forward,,\n", ["observes nothing"]),
+        ("forward,0,-50\n", ["distance_per_cycle_mm = -50", "the heading gives the direction"]),
+        ("forward,0,50000\n", ["distance_per_cycle_mm = 50000", "mm per gait cycle"]),  # micrometres
+        ("forward,720,50\n", ["compass_deg = 720"]),
+    ],
+    ids=["no-rows", "all-blank", "negative-distance", "not-mm", "compass"],
+)
+def test_an_observation_table_that_observes_nothing_or_in_other_units_is_refused(tmp_path: Path, rows, words):
+    # each once gave a fit: cost 0 and a fit.yaml for an empty or blank table, a negative distance read as one
+    from slotexp.errors import UserError
+    from slotexp.jobs.identify import read_table
+
+    path = tmp_path / "observations.csv"
+    path.write_text("gait,compass_deg,distance_per_cycle_mm\n" + rows)
+    with pytest.raises(UserError) as err:
+        read_table(path, ["forward", "crawl_forward"])
+    assert "\n" not in str(err.value) and all(w in str(err.value) for w in words), str(err.value)
+
+
+def test_a_track_in_millimetres_is_refused_not_fitted(tmp_path: Path):
+    # it once gave a cost of 1.8e7 and a fit: positions are metres
+    from slotexp.errors import UserError
+    from slotexp.jobs.identify import read_track
+
+    path = tmp_path / "forward.csv"
+    path.write_text("t,com_x,com_y,com_z\n0,0,0,40\n1,50,0,40\n")
+    with pytest.raises(UserError, match="millimetres"):
+        read_track(str(path))

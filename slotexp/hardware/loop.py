@@ -119,10 +119,12 @@ def run_loop(
             break
         age = float("inf") if sample is None else clock() - sample.received
         if age > max_age_s:
+            refused = getattr(odometry, "last_problem", None)  # messages arrive but are refused: say why
             raise SafetyStop(
                 "stale odometry",
                 f"odometry is {age:.3f} s old (limit odometry.max_age_s = "
-                f"{max_age_s:g} s): stopped the loop and turned the torque off",
+                f"{max_age_s:g} s): stopped the loop and turned the torque off"
+                + (f"; its messages were refused: {refused}" if refused else ""),
             )
         x = sample.state
         step = controller.step(t, x, nominal_feet(robot, sample.position, sample.quaternion))

@@ -58,6 +58,10 @@ class OdometrySource(Protocol):
     def close(self) -> None: ...
 
 
+ROOM_M = 100.0  # m: an odometry position farther from its origin is not this robot's (units, or a fault)
+MAX_SPEED = 5.0  # m/s: SLOT walks at tens of mm/s
+
+
 def _vec(msg: Mapping[str, Any], key: str, n: int) -> np.ndarray:
     value = msg.get(key)
     if not isinstance(value, (list, tuple)) or len(value) != n:
@@ -77,8 +81,14 @@ def sample_from_message(msg: Any, received: float) -> OdometrySample:
     except (KeyError, TypeError, ValueError):
         raise ValueError("'t' must be a number (seconds)") from None
     p = _vec(msg, "position", 3)
+    if float(np.max(np.abs(p))) > ROOM_M:
+        raise ValueError(
+            f"'position' {p.tolist()} is beyond a room ({ROOM_M:g} m from the origin): positions are in metres"
+        )
     qx, qy, qz, qw = _vec(msg, "orientation", 4)
     v = _vec(msg, "linear_velocity", 3)
+    if float(np.linalg.norm(v)) > MAX_SPEED:
+        raise ValueError(f"'linear_velocity' {v.tolist()} is faster than {MAX_SPEED:g} m/s: velocities are in m/s")
     w_body = _vec(msg, "angular_velocity", 3)
     q = np.array([qw, qx, qy, qz])
     norm = float(np.linalg.norm(q))

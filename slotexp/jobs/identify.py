@@ -51,7 +51,7 @@ import pandas as pd
 import yaml
 
 from ..atomic import write_csv, write_json, write_text
-from ..config import SlotConfig, choice_field, num_field
+from ..config import SlotConfig, check_fields, choice_field, num_field
 from ..errors import ConfigError, UserError
 from ..locomotion.schedules import cycle_s, gait_metrics, play, with_profile_velocity, wrap_deg
 from ..parallel import ParallelConfig, pool
@@ -171,6 +171,17 @@ class IdentifyExperiment:
                 raise ConfigError(f"experiment.parameters: {p.path} has lo = {p.lo:g} >= hi = {p.hi:g}: give lo < hi")
             if p.log and p.lo <= 0:
                 raise ConfigError(f"experiment.parameters: {p.path} is searched in log space: give lo > 0")
+            # the range inside the setting's own valid values (a fit there would be refused by the tool itself);
+            # a robust fit also runs each robust setting 10 % beyond the candidates
+            spread = self.robust.fraction if p.path in self.robust.parameters else 0.0
+            for end, value in (("lo", p.lo * (1.0 - spread)), ("hi", p.hi * (1.0 + spread))):
+                try:
+                    check_fields(with_setting(cfg, p.path, value))
+                except ConfigError as exc:
+                    raise ConfigError(
+                        f"experiment.parameters: {p.path} from {p.lo:g} to {p.hi:g} leaves its valid values at {end} "
+                        f"({str(exc).splitlines()[0]}): narrow the range"
+                    ) from None
         truth = self.synthetic.truth
         if truth is not None:
             if len(truth) != len(self.parameters):
@@ -337,7 +348,34 @@ def read_table(path: Path, names: list[str], cfg_height: float = math.nan) -> pd
     unknown = sorted(set(table["gait"]) - set(names))
     if unknown:
         raise UserError(f"{path}: gait(s) {', '.join(unknown)} are not in experiment.schedules: add them or drop them")
+    _check_observed(path, table)
     return table[list(TABLE)].reset_index(drop=True)
+
+
+MAX_STRIDE_MM = 500.0  # mm per cycle: more than two of the robot's leg spans (its feet span about 380 mm)
+MAX_HEIGHT_MM = 300.0  # mm: the torso on fully straight legs stands about 200 mm
+
+
+def _check_observed(path: Path, table: pd.DataFrame) -> None:
+    """An observation table observes something, in the units it says: no fit is made of an empty table (its cost
+    would be 0), a negative distance (the heading carries the direction), or metres or centimetres read as mm."""
+    observed = table[["compass_deg", "distance_per_cycle_mm", "height_mm"]].notna().to_numpy().any(axis=1)
+    if not observed.any():
+        raise UserError(
+            f"{path}: observes nothing ({len(table)} rows, every heading, distance and height blank): give at least "
+            "one gait's compass_deg or distance_per_cycle_mm"
+        )
+    for column, lo, hi, unit in (
+        ("distance_per_cycle_mm", 0.0, MAX_STRIDE_MM, "mm per gait cycle, >= 0 (the heading gives the direction)"),
+        ("height_mm", 0.0, MAX_HEIGHT_MM, "mm of the torso above the floor"),
+        ("compass_deg", -360.0, 360.0, "deg, clockwise from forward"),
+    ):
+        bad = table[table[column].notna() & ~table[column].between(lo, hi)]
+        if not bad.empty:
+            row = bad.iloc[0]
+            raise UserError(
+                f"{path}: {column} = {row[column]:g} for {row['gait']} is not in {lo:g}-{hi:g}: give {unit}"
+            )
 
 
 def read_track(spec: str) -> tuple[np.ndarray, np.ndarray]:
