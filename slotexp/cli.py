@@ -9,6 +9,8 @@ from inside a job.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import errno
 import functools
 import itertools
@@ -109,18 +111,59 @@ def _override_value(overrides: list[str], key: str) -> str | None:
     return value
 
 
-def _claim_run_dir(overrides: list[str], multirun: bool) -> None:
-    """Before Hydra writes into an explicit ``hydra.run.dir`` (or ``hydra.sweep.dir`` with ``-m``): lock it,
-    and refuse another run's (or sweep's) outputs unless ``overwrite=true`` (:mod:`slotexp.rundir`)."""
-    from .rundir import claim, claim_sweep
+PRINT_FLAGS = ("--cfg", "-c", "--info", "-i")  # Hydra prints the config or its setup and runs nothing
 
+
+def _prints_only(args: list[str]) -> bool:
+    """Whether Hydra is asked to print (``--cfg job``, ``--info``) rather than run: nothing is claimed then."""
+    return any(a in PRINT_FLAGS or a.startswith(tuple(f"{f}=" for f in PRINT_FLAGS)) for a in args)
+
+
+def _claim_run_dir(overrides: list[str], multirun: bool, config_name: str = "config") -> list[str]:
+    """Before Hydra writes anything: resolve the directory it would write (``hydra.run.dir``, or with ``-m``
+    ``hydra.sweep.dir``: the default or the one given, interpolations resolved), lock it, and refuse another
+    process's or another run's (unless ``overwrite=true``: then set aside, :mod:`slotexp.rundir`). A default
+    directory already taken gets a suffix. Returns the overrides that give Hydra exactly that directory."""
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    from .rundir import claim, claim_sweep, unique
+
+    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
     overwrite = (_override_value(overrides, "overwrite") or "false").lower() in ("true", "yes", "on", "1")
-    directory = _override_value(overrides, "hydra.sweep.dir" if multirun else "hydra.run.dir")
-    if directory:
-        try:
-            (claim_sweep if multirun else claim)(Path(directory), overwrite)
-        except UserError as exc:
-            fail(str(exc))
+    given = _override_value(overrides, key)
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    plain = []  # the first job's settings: a sweep's directory is the sweep's, whatever each job sets
+    for parsed in OverridesParser.create().parse_overrides(overrides):
+        if parsed.is_sweep_override():
+            plain.append(_override_text(parsed, next(iter(parsed.sweep_string_iterator()))))
+        else:
+            plain.append(parsed.input_line)
+    register_schemas()
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = compose(config_name, overrides=plain, return_hydra_config=True)
+            directory = Path(str(OmegaConf.select(cfg, key)))
+            subdir = OmegaConf.to_container(cfg.hydra.sweep, resolve=False).get("subdir", "")
+    except (HydraException, OmegaConfBaseException) as exc:
+        fail(f"{key}: cannot resolve the output directory ({_compose_message(exc)})")
+    if multirun and "${" not in str(subdir):
+        fail(
+            f"hydra.sweep.subdir = {subdir!r} is the same for every job, so every job would write into one directory: "
+            "include ${hydra.job.num}"
+        )
+    if given is None:
+        directory = unique(directory)
+    try:
+        (claim_sweep if multirun else claim)(directory, overwrite)
+    except UserError as exc:
+        fail(str(exc))
+    if "'" in str(directory):
+        fail(f"{key} = {directory}: a directory name with a quote (') cannot be passed to Hydra: rename it")
+    return [o for o in overrides if o.lstrip("+").partition("=")[0] != key] + [f"{key}='{directory}'"]
 
 
 def register_schemas() -> None:
@@ -437,11 +480,15 @@ def _hydra_task(cfg) -> None:
 
     from .controllers._gait import envelope_warning
     from .jobs import EXPERIMENTS, run_experiment
+    from .rundir import finish, replaced
     from .signals import die_with_parent, is_sweep_worker
 
     if is_sweep_worker():
         die_with_parent()  # a sweep's job ends with its parent, SIGKILL included
     out_dir = Path(HydraConfig.get().runtime.output_dir)
+    aside = replaced(out_dir)
+    if aside is not None:
+        atexit.register(_kept_note, out_dir)  # says where they are, unless the run succeeds
     try:
         with _one_line_failures(out_dir):
             checked = load_config(cfg)
@@ -454,6 +501,7 @@ def _hydra_task(cfg) -> None:
             summary = []
             if experiment.summary is not None and (out_dir / experiment.summary).is_file():
                 summary.append((out_dir / experiment.summary).read_text().rstrip())
+            finish(out_dir)  # an overwritten run's outputs go only now
             _say(*summary, f"done in {time.monotonic() - started:.0f} s; outputs in:", str(out_dir), out_dir=out_dir)
             return
     except KeyboardInterrupt as exc:
@@ -465,6 +513,16 @@ def _hydra_task(cfg) -> None:
             sys.stderr.flush()
             os._exit(128 + signum)
         raise SystemExit(128 + signum) from None
+
+
+def _kept_note(out_dir: Path) -> None:
+    """At exit: a run that overwrote another and did not succeed says where the earlier outputs are kept."""
+    from .rundir import replaced
+
+    aside = replaced(out_dir)
+    if aside is not None:
+        with contextlib.suppress(OSError):
+            sys.stderr.write(f"note: the outputs this run was to replace are kept in {aside}\n")
 
 
 @contextmanager
@@ -567,7 +625,9 @@ def run(ctx: typer.Context) -> None:
     if not info:
         precheck(overrides, multirun)
         _check_hydra_dirs(overrides)
-        _claim_run_dir(overrides, multirun)
+        if not _prints_only(args):
+            claimed = _claim_run_dir(overrides, multirun)
+            args = [a for a in args if a not in overrides] + claimed
     if multirun:
         from .signals import become_sweep_parent
 
@@ -578,6 +638,10 @@ def run(ctx: typer.Context) -> None:
     main_fn = hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")(_hydra_task)
     try:
         main_fn()
+        if multirun and not info and not _prints_only(args):
+            from .rundir import finish
+
+            finish(Path(_override_value(claimed, "hydra.sweep.dir") or "."))
     except KeyboardInterrupt as exc:  # a sweep's parent (a single run reports from inside its job)
         signum, word = _stopped_by(exc)
         typer.echo(f"{word}: each running job closed its log; jobs not started were not run", err=True)
@@ -665,7 +729,9 @@ def hardware(
 
         precheck(overrides, False, HARDWARE_CONFIG, HARDWARE_GROUPS, load_hardware_config, HardwareSlotConfig)
         _check_hydra_dirs(overrides)
-        _claim_run_dir(overrides, False)
+        if not _prints_only(args):
+            claimed = _claim_run_dir(overrides, False, HARDWARE_CONFIG)
+            args = [a for a in args if a not in overrides] + claimed
     register_schemas()
     sys.argv = ["slot", *args]
     main_fn = hydra.main(config_path=str(CONF_DIR), config_name=HARDWARE_CONFIG, version_base="1.3")(_hardware_task)
@@ -703,7 +769,9 @@ def _stoppable(command: Callable[..., None]) -> Callable[..., None]:
 @_stoppable
 def bench(
     ctx: typer.Context,
-    out: Path = typer.Option(None, "--out", help="Output directory (default experiments/bench/<timestamp>)."),
+    out: str = typer.Option(
+        None, "--out", help="Output directory (default experiments/bench/<timestamp>; hydra.run.dir=DIR too)."
+    ),
 ) -> None:
     """Benchmark components side by side in one process: slot bench mpc leg, plus any Hydra overrides.
 
@@ -716,21 +784,34 @@ def bench(
     from rich.table import Table
 
     from . import bench as bench_pkg
+    from .rundir import claim, finish, unique
 
     components = bench_pkg.COMPONENTS
     args = list(ctx.args)
     names = [a for a in args if "=" not in a] or list(components.names())
-    overrides = [a for a in args if "=" in a]
+    overrides = [a for a in args if "=" in a and not a.startswith("hydra.")]
     unknown = [n for n in names if n not in components.names()]
     if unknown:
         fail(f"unknown bench component {unknown[0]!r}: choose from {', '.join(components.names())}")
     configs = {name: compose_config([*components.get(name).overrides, *overrides]) for name in names}
-    out_dir = out or Path("experiments") / "bench" / _dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-    check_output_dir(out_dir, "--out")  # before the measurements, not after
+    # the output directory under the same rules as a run's (slotexp/rundir.py), claimed before the measurements
+    key = "--out" if out is not None else "hydra.run.dir"
+    given = out if out is not None else _override_value(args, "hydra.run.dir")
+    if given is not None:
+        check_output_dir(given, key)
+        out_dir = Path(given)
+    else:
+        out_dir = unique(Path("experiments") / "bench" / _dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S"))
+    overwrite = (_override_value(overrides, "overwrite") or "false").lower() in ("true", "yes", "on", "1")
+    try:
+        claim(out_dir, overwrite, key)
+    except UserError as exc:
+        fail(str(exc))
     rows = []
     for name in names:
         rows += components.get(name).measure(configs[name], out_dir)
     bench_pkg.write(rows, out_dir)
+    finish(out_dir)
     table = Table(*bench_pkg.CSV_COLUMNS)
     for r in rows:
         table.add_row(r.component, r.variant, f"{r.median_us:.4g}", f"{r.p99_us:.4g}", f"{r.ratio_vs_baseline:.3g}")
@@ -755,6 +836,10 @@ def figures(
 
     if not run_dir.is_dir():
         fail(f"{run_dir}: not a directory: give a run's output directory")
+    from .rundir import held_by_another
+
+    if held_by_another(run_dir):
+        fail(f"{run_dir} is in use by a run that is still writing it: wait for it to finish, then rebuild")
     try:
         if (run_dir / val.INPUTS_FILE).is_file():  # a comparison of given logs: its inputs are the record
             val.rebuild(run_dir)

@@ -1,13 +1,15 @@
-"""An output directory is never silently reused or written by two runs at once.
+"""An output directory is never silently reused, written by two runs at once, or lost to an overwrite.
 
-``slot run`` (and ``slot hardware``) with an explicit ``hydra.run.dir`` takes an
-exclusive lock on the directory (``.slot-run.lock``, ``fcntl.flock``: released when
-the process ends, however it ends) before Hydra writes anything there, and refuses
-a directory that another run is writing or that holds another run's outputs
-(``logs/*.mcap``, tables, metrics), unless ``overwrite=true``: then the earlier
-outputs are removed first, so that no table mixes two runs. ``slot run -m`` does
-the same for an explicit ``hydra.sweep.dir`` (another sweep: its ``multirun.yaml``
-and job directories). Timestamped default directories are new and are not locked.
+Every command that writes a run's outputs claims its directory first (:func:`claim`), the one
+Hydra would resolve (``slot run``: its default ``experiments/<experiment>/<time>`` or
+``hydra.run.dir`` with its interpolations, made explicit for Hydra): it takes an exclusive
+lock (``.slot-run.lock``, ``fcntl.flock``: released when the process ends, however it ends),
+refuses a directory another process holds, and refuses one that holds anything else (another
+run's outputs, or unrelated files) unless ``overwrite=true``. An overwrite deletes nothing: the
+earlier contents move aside into ``.replaced/`` and are removed only when the new run
+succeeds (:func:`finish`); a run that fails leaves them there, and says so. ``slot run -m``
+does the same for its sweep directory (:func:`claim_sweep`). A default directory that is
+taken (two runs started in the same second) gets a suffix (:func:`unique`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import IO
 from .errors import UserError
 
 LOCK = ".slot-run.lock"
+REPLACED = ".replaced"  # an overwritten run's outputs, until the new run succeeds
 TABLES = ("table1.csv", "table1.md", "metrics.json", "fig7_cost.png", "fig8_dcm.png")  # built from a run's logs
 _held: list[IO[str]] = []  # locks this process holds until it ends
 
@@ -32,8 +35,13 @@ def earlier_outputs(run_dir: Path) -> list[Path]:
 
 def _lock(directory: Path, key: str) -> None:
     """Take ``directory``'s lock for the rest of this process, or say that another run holds it."""
-    directory.mkdir(parents=True, exist_ok=True)
-    handle = open(directory / LOCK, "a+")
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        handle = open(directory / LOCK, "a+")
+    except OSError as exc:  # a file in the way, a read-only file system, a name too long
+        raise UserError(
+            f"cannot write the output directory {directory} ({exc.strerror or exc}): choose another {key}"
+        ) from None
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
@@ -48,23 +56,69 @@ def _lock(directory: Path, key: str) -> None:
     _held.append(handle)
 
 
-def _refuse_or_clear(directory: Path, earlier: list[Path], overwrite: bool, what: str, key: str) -> None:
+def held_by_another(directory: Path) -> bool:
+    """Whether a live process holds ``directory``'s lock (a run still writing there)."""
+    lock = directory / LOCK
+    if not lock.is_file():
+        return False
+    with open(lock) as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return True
+        fcntl.flock(handle, fcntl.LOCK_UN)
+    return False
+
+
+def unique(directory: Path) -> Path:
+    """``directory``, or with ``_2``, ``_3``, ... added where it is taken: for a default (timestamped) directory,
+    which two runs started in the same second would share."""
+    candidate, n = directory, 1
+    while candidate.exists() and any(p.name != LOCK for p in candidate.iterdir()) or held_by_another(candidate):
+        n += 1
+        candidate = directory.with_name(f"{directory.name}_{n}")
+    return candidate
+
+
+def _contents(directory: Path) -> list[Path]:
+    """Everything in ``directory`` but its lock and what an earlier overwrite set aside."""
+    return sorted(p for p in directory.iterdir() if p.name not in (LOCK, REPLACED)) if directory.is_dir() else []
+
+
+def _refuse_or_set_aside(directory: Path, earlier: list[Path], overwrite: bool, what: str, key: str) -> None:
     if earlier and not overwrite:
         shown = ", ".join(p.name for p in earlier[:3]) + (", ..." if len(earlier) > 3 else "")
         raise UserError(
             f"{directory} holds another {what} ({shown}): choose another {key}, or add overwrite=true to replace them"
         )
+    if not earlier:
+        return
+    aside = directory / REPLACED
+    if aside.exists():  # an earlier overwrite that failed: its outputs are the ones to keep
+        shutil.rmtree(aside / "newer", ignore_errors=True)
+        target = aside / "newer"
+    else:
+        target = aside
+    target.mkdir(parents=True)
     for path in earlier:
-        if path.is_dir():
-            shutil.rmtree(path)
-        else:
-            path.unlink(missing_ok=True)
+        path.rename(target / path.name)
 
 
-def claim(run_dir: Path, overwrite: bool) -> None:
-    """Lock ``run_dir`` for this process, and refuse (or, with ``overwrite``, clear) earlier outputs."""
-    _lock(run_dir, "hydra.run.dir")
-    _refuse_or_clear(run_dir, earlier_outputs(run_dir), overwrite, "run's outputs", "hydra.run.dir")
+def finish(directory: Path) -> None:
+    """The run in ``directory`` succeeded: what it replaced can go."""
+    shutil.rmtree(directory / REPLACED, ignore_errors=True)
+
+
+def replaced(directory: Path) -> Path | None:
+    """Where an overwritten run's outputs wait (``None``: nothing was replaced)."""
+    aside = directory / REPLACED
+    return aside if aside.exists() else None
+
+
+def claim(run_dir: Path, overwrite: bool, key: str = "hydra.run.dir") -> None:
+    """Lock ``run_dir`` for this process, and refuse (or, with ``overwrite``, set aside) what it holds."""
+    _lock(run_dir, key)
+    _refuse_or_set_aside(run_dir, _contents(run_dir), overwrite, "run's outputs", key)
 
 
 def earlier_sweep(sweep_dir: Path) -> list[Path]:
@@ -78,4 +132,4 @@ def claim_sweep(sweep_dir: Path, overwrite: bool) -> None:
     """:func:`claim` for ``slot run -m``'s ``hydra.sweep.dir``: a second sweep into it at the same time, or
     afterwards, would mix its jobs with the first's (``slot summarize`` reads every job directory)."""
     _lock(sweep_dir, "hydra.sweep.dir")
-    _refuse_or_clear(sweep_dir, earlier_sweep(sweep_dir), overwrite, "sweep", "hydra.sweep.dir")
+    _refuse_or_set_aside(sweep_dir, _contents(sweep_dir), overwrite, "sweep", "hydra.sweep.dir")

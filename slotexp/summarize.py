@@ -167,16 +167,40 @@ def summarize(multirun_dir: Path) -> pd.DataFrame:
             print(f"warning: {job.name}: logs {row['logs']}: its row is not a whole run", file=sys.stderr)
         rows.append(row)
     table = pd.DataFrame(rows)
+    missing = missing_jobs(multirun_dir, jobs)
+    gap = ""
+    if missing:
+        shown = ", ".join(str(n) for n in missing[:10]) + (", ..." if len(missing) > 10 else "")
+        gap = f" {len(missing)} planned job(s) have no directory (numbers {shown}): the sweep was cut short."
+        print(f"warning: {multirun_dir}:{gap} The summary covers the {len(jobs)} that ran", file=sys.stderr)
     write_csv(table, multirun_dir / "summary.csv", index=False, float_format="%.6g")
     write_text(
         multirun_dir / "summary.md",
-        f"Sweep `{multirun_dir}`: {len(jobs)} jobs. Update time = /mpc/stats wall_time_s (build or update + solve) "
-        f"over every logged MPC step but each log's first (one-off setup); infeasible = fallback steps "
+        f"Sweep `{multirun_dir}`: {len(jobs)} jobs.{gap} Update time = /mpc/stats wall_time_s (build or update + "
+        f"solve) over every logged MPC step but each log's first (one-off setup); infeasible = fallback steps "
         f"(deterministic: in scenarios without noise); logs: complete, incomplete (a log cut off or stopped "
         f"before its end: that row is not a whole run) or missing.\n\n" + to_markdown(table) + "\n",
     )
     _plot(table, multirun_dir / "summary.png")
     return table
+
+
+def missing_jobs(multirun_dir: Path, jobs: list[Path]) -> list[int]:
+    """The numbers of the jobs the sweep planned (``multirun.yaml``: every combination of its swept values,
+    Hydra's basic sweeper) that have no directory: a sweep stopped before them. Empty where the plan is unknown."""
+    try:
+        plan = yaml.safe_load((multirun_dir / "multirun.yaml").read_text()) or {}
+        task = plan["hydra"]["overrides"]["task"]
+        from hydra.core.override_parser.overrides_parser import OverridesParser
+
+        planned = 1
+        for o in OverridesParser.create().parse_overrides(list(task)):
+            if o.is_sweep_override():
+                planned *= len(list(o.sweep_string_iterator()))
+    except Exception:  # no plan to compare with (an older sweep, another sweeper): nothing to say
+        return []
+    found = {int(j.name.split("_", 1)[0]) for j in jobs if j.name.split("_", 1)[0].isdigit()}
+    return [n for n in range(planned) if n not in found]
 
 
 def _configured_solver(job: Path) -> str:

@@ -756,6 +756,74 @@ def test_a_run_directory_with_another_runs_outputs_is_refused_unless_overwrite(t
     assert len(read_log(log)["/state"]) == 60  # the new run's, whole
 
 
+def test_an_overwrite_sets_the_earlier_outputs_aside_until_the_new_run_succeeds(tmp_path: Path) -> None:
+    # an overwrite once cleared the old outputs before the new run's input was checked (a bad CSV path lost the
+    # earlier run), and left another experiment's files beside the new ones
+    run_dir = tmp_path / "run"
+    ok(slot("run", "experiment=simulate", "experiment.duration=1", f"hydra.run.dir={run_dir}", cwd=tmp_path))
+    before = (run_dir / "logs" / "walk.mcap").read_bytes()
+    bad = slot(
+        "run", "experiment=validate", "experiment.reference=/nowhere.csv", f"hydra.run.dir={run_dir}",
+        "overwrite=true", cwd=tmp_path,
+    )  # fmt: skip
+    assert bad.returncode == 2 and "no such file" in bad.stderr
+    kept = run_dir / ".replaced"
+    assert f"kept in {kept}" in bad.stderr
+    assert (kept / "logs" / "walk.mcap").read_bytes() == before  # nothing already written is lost
+    replaced = ok(
+        slot("run", "experiment=perturb", "experiment.scenarios=[baseline]", "experiment.duration=1",
+             f"hydra.run.dir={run_dir}", "overwrite=true", cwd=tmp_path)
+    )  # fmt: skip
+    assert "kept in" not in replaced.stderr
+    assert not kept.exists()  # the new run succeeded: what it replaced is gone ...
+    assert not (run_dir / "fig6_path.png").exists()  # ... and no other experiment's file stays beside its own
+    assert (run_dir / "table1.csv").exists()
+
+
+def test_the_directory_hydra_resolves_is_the_one_claimed(tmp_path: Path) -> None:
+    # an interpolated hydra.run.dir once bypassed the guard (an earlier run overwritten, a literal ${gait.name}
+    # directory made); a file in the way, or a sweep whose jobs would share one directory, end in one line
+    first = ok(slot("run", "experiment=simulate", "experiment.duration=1", "hydra.run.dir=runs/${gait.name}",
+                    cwd=tmp_path))  # fmt: skip
+    assert last_line(first.stdout) == str(tmp_path / "runs" / "walk")
+    again = slot("run", "experiment=simulate", "experiment.duration=1", "hydra.run.dir=runs/${gait.name}", cwd=tmp_path)
+    assert_one_line_error(again, "runs/walk", "overwrite=true")
+    assert not (tmp_path / "runs" / "${gait.name}").exists()
+    (tmp_path / "blocked").write_text("a file where a directory should go")
+    blocked = slot("run", "experiment=simulate", "experiment.duration=1", "hydra.run.dir=blocked/run", cwd=tmp_path)
+    assert_one_line_error(blocked, "blocked/run", "choose")
+    same = slot("run", "-m", "experiment=simulate", "gait=walk,crawl", "hydra.sweep.subdir=one", cwd=tmp_path)
+    assert_one_line_error(same, "hydra.sweep.subdir", "the same for every job")
+
+
+def test_default_directories_of_runs_started_in_the_same_second_differ(tmp_path: Path) -> None:
+    from slotexp.rundir import claim, unique
+
+    default = tmp_path / "experiments" / "simulate" / "2026-01-01_00-00-00"
+    claim(unique(default), False)  # the first run's, held by this process (a live run)
+    second = unique(default)
+    assert second == default.with_name(default.name + "_2")
+    (second / "slot.log").parent.mkdir(parents=True)
+    (second / "slot.log").write_text("a finished run's log")
+    assert unique(default) == default.with_name(default.name + "_3")
+
+
+def test_slot_bench_and_figures_follow_the_same_directory_rules(tmp_path: Path) -> None:
+    from slotexp.rundir import claim
+
+    assert_one_line_error(slot("bench", "mpc", "--out=", cwd=tmp_path), "--out is empty")
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    (earlier / "bench.csv").write_text("an earlier benchmark")
+    assert_one_line_error(slot("bench", "mpc", "--out", str(earlier), cwd=tmp_path), "holds another", "overwrite=true")
+    refused = slot("bench", "mpc", f"hydra.run.dir={earlier}", cwd=tmp_path)  # honoured, under the same rules
+    assert_one_line_error(refused, "hydra.run.dir", "overwrite=true")
+    assert (earlier / "bench.csv").read_text() == "an earlier benchmark"
+    busy = tmp_path / "busy"
+    claim(busy, False)  # a run still writing there (this process holds its lock)
+    assert_one_line_error(slot("figures", str(busy), cwd=tmp_path), "still writing")
+
+
 def test_a_run_directory_in_use_is_refused(tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
     busy = subprocess.Popen(

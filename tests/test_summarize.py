@@ -55,6 +55,19 @@ def test_summarize_gathers_every_job_of_a_sweep(sweep: Path) -> None:
     assert (sweep / "summary.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_sweep_cut_short_is_summarized_with_its_missing_jobs_named(tmp_path: Path, sweep: Path) -> None:
+    # summarize once said nothing of the jobs an interrupted sweep never ran
+    cut = tmp_path / "cut"
+    shutil.copytree(sweep, cut)
+    assert "no directory" not in ok(slot("summarize", cut, cwd=tmp_path)).stderr  # the whole sweep: none missing
+    second = next(p for p in cut.iterdir() if p.name.startswith("1_"))
+    shutil.rmtree(second)
+    proc = ok(slot("summarize", cut, cwd=tmp_path))
+    assert "1 planned job(s) have no directory (numbers 1)" in proc.stderr
+    assert "1 planned job(s) have no directory" in (cut / "summary.md").read_text()
+    assert len(pd.read_csv(cut / "summary.csv")) == 1
+
+
 def test_swept_settings_become_columns_and_deterministic_counts_apart(tmp_path: Path, sweep: Path) -> None:
     for i, horizon in enumerate((10, 12)):
         job = tmp_path / f"{i}_mpc.horizon={horizon},solver=scs"
