@@ -21,6 +21,16 @@ SLOT_CMD = [str(SLOT)] if SLOT.exists() else [sys.executable, "-m", "slotexp.cli
 PLAN_TOL = 1e-4  # N, constraint tolerance of the CVXPY solutions
 
 
+def as_from_a_terminal() -> None:
+    """``preexec_fn`` for a ``slot`` process that a test signals: SIGINT and SIGHUP at their defaults, as from a
+    terminal. A test run in the background ignores SIGINT, and under nohup SIGHUP; ignored signals are
+    inherited, and slot rightly leaves an ignored SIGHUP ignored (nohup asks a run to outlive its terminal)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+
 def turned_off_after_on(torque_writes: list[int]) -> bool:
     """The host turned a servo's torque on and, after the last time it did, off again (retries allowed)."""
     return 1 in torque_writes and torque_writes[-1] == 0

@@ -24,7 +24,17 @@ from mcap.reader import make_reader
 
 from slotexp.record import is_closed, read_log
 from slotexp.signals import child_processes
-from tests.helpers import CONF, SLOT_CMD, assert_one_line_error, assert_png, last_line, ok, slot, slot_after
+from tests.helpers import (
+    CONF,
+    SLOT_CMD,
+    as_from_a_terminal,
+    assert_one_line_error,
+    assert_png,
+    last_line,
+    ok,
+    slot,
+    slot_after,
+)
 
 TABLE1_HEADER = ["scenario", "max_cost", "mean_cost", "final_cost", "settle_s", "infeasible_steps"]
 PERTURB_SCENARIOS = ["baseline", "height"]
@@ -544,9 +554,7 @@ def _alive(pid: int) -> bool:
 
 
 def _spawn(args: list[str], cwd: Path) -> subprocess.Popen:
-    """``slot`` in its own session, as from a terminal: a test run started in the background ignores SIGINT,
-    and under nohup SIGHUP, and an ignored signal is inherited, so the run would rightly never see the Ctrl-C
-    or the hang-up it is sent (slot leaves nohup's SIGHUP ignored)."""
+    """``slot`` in its own session, as from a terminal (:func:`tests.helpers.as_from_a_terminal`)."""
     return subprocess.Popen(
         args,
         cwd=cwd,
@@ -554,13 +562,8 @@ def _spawn(args: list[str], cwd: Path) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
-        preexec_fn=_as_from_a_terminal,
+        preexec_fn=as_from_a_terminal,
     )
-
-
-def _as_from_a_terminal() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=["SIGTERM", "SIGINT", "SIGHUP"])

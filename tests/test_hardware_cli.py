@@ -23,6 +23,7 @@ import pytest
 from slotexp.record import read_log
 from tests.helpers import (
     SLOT_CMD,
+    as_from_a_terminal,
     assert_one_line_error,
     assert_png,
     last_line,
@@ -50,6 +51,7 @@ def start(emu: ServoEmulator, pub: OdometryPublisher, run_dir: Path, *extra: str
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        preexec_fn=as_from_a_terminal,
     )
 
 
@@ -121,6 +123,7 @@ def test_a_closed_terminal_turns_the_torque_off_without_the_watchdog(tmp_path: P
             stdout=slave,
             stderr=slave,
             start_new_session=True,
+            preexec_fn=as_from_a_terminal,
         )
         os.close(slave)
         drained = threading.Thread(target=_drain, args=(master,), daemon=True)

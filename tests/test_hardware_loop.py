@@ -256,6 +256,7 @@ def test_the_stop_flag_takes_every_stop_signal_and_nothing_cuts_the_shutdown_sho
 
     from slotexp.signals import STOP_SIGNALS, StopFlag
 
+    inherited = signal.signal(signal.SIGHUP, signal.SIG_DFL)  # as from a terminal, even if the tests run under nohup
     before = {s: signal.getsignal(s) for s in STOP_SIGNALS}
     stop = StopFlag()
     with stop.installed():
@@ -275,3 +276,4 @@ def test_the_stop_flag_takes_every_stop_signal_and_nothing_cuts_the_shutdown_sho
             assert not ignoring.requested and signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGHUP, previous)
+        signal.signal(signal.SIGHUP, inherited)
