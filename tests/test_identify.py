@@ -276,3 +276,13 @@ def test_a_track_in_millimetres_is_refused_not_fitted(tmp_path: Path):
     path.write_text("t,com_x,com_y,com_z\n0,0,0,40\n1,50,0,40\n")
     with pytest.raises(UserError, match="millimetres"):
         read_track(str(path))
+
+
+def test_a_best_value_at_its_ranges_end_is_flagged_in_the_searched_space():
+    # the robust fit's damping, 79.26 of 5-80 searched in log space, stopped at the range, not at the data
+    from slotexp.jobs.identify import ParameterSpec, _at_edge
+
+    damping = ParameterSpec(path="robot.leg.damping_per_s", lo=5.0, hi=80.0, log=True)
+    assert _at_edge(damping, 79.26) == "hi" and _at_edge(damping, 5.05) == "lo" and _at_edge(damping, 20.0) == ""
+    linear = ParameterSpec(path="robot.servo.horn_zero_deg", lo=80.0, hi=140.0)
+    assert _at_edge(linear, 80.5) == "lo" and _at_edge(linear, 82.0) == ""  # 1 % of 60 deg is 0.6 deg

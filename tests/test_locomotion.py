@@ -376,3 +376,16 @@ def test_a_step_schedule_seeds_a_primitive_of_its_shape() -> None:
     assert high[:, 0].any() and high[:, 3].any() and not np.any(high[:, 0] & high[:, 3])  # the front legs alternate
     np.testing.assert_allclose(angles[:, 1:3], 80.0)
     assert load("plant=cosserat", "experiment=gait_search", "experiment.start_from=forward").experiment.start_from
+
+
+def test_max_evals_caps_the_search_at_whole_generations():
+    # 10 evaluations at 4 a generation: the start and two generations (8), never a third that would pass the cap
+    seen: list[int] = []
+
+    def evaluate(xs):
+        seen.append(len(xs))
+        return [float(np.sum((np.asarray(x) - 0.3) ** 2)) for x in xs]
+
+    bounds = (np.zeros(3), np.ones(3))
+    search(evaluate, np.full(3, 0.5), sigma0=0.2, popsize=4, max_evals=10, seed=1, bounds=bounds)
+    assert seen == [1, 4, 4]

@@ -225,7 +225,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
             targets = []
             task_all = bar.add_task("verify", total=len(current))
         for i, target in enumerate(targets):
-            task = bar.add_task(f"{_label(target):<8}", total=exp.max_evals + 1)
+            task = bar.add_task(f"{_label(target):<8}", total=exp.max_evals // exp.popsize * exp.popsize + 1)
             start = fixed_start if fixed_start is not None and target != TURN else _start(current, target)
             x0 = to_vector(start, top)
             sigma = exp.sigma_refine if _near(start, target) else exp.sigma0

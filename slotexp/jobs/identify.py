@@ -42,6 +42,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -540,7 +541,11 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         # every core: the engine's processes, each batch's robots on the cores left to it
         local = exp.parallel.engine == "processes" or exp.parallel.address is None
         threads = max(1, (os.cpu_count() or 1) // engine.workers) if local else 0
-        task = bar.add_task("identify", total=exp.initial_design + exp.max_evals + k * exp.slice_points + 2)
+        # every evaluation: the start and the design, the search's start and its whole generations within
+        # max_evals, the scan, the best run again (CMA-ES may stop sooner: the bar is closed at the count done)
+        design = exp.initial_design + 1 if exp.initial_design > 0 else 0
+        generations = exp.max_evals // exp.popsize * exp.popsize
+        task = bar.add_task("identify", total=design + 1 + generations + k * exp.slice_points + 1)
         written = 0
         generation = 0
 
@@ -605,6 +610,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
                     best_cost, best_u = c, u
         ((v, r, c, _),) = run_candidates([best_u])
         bar.advance(task)
+        bar.update(task, total=written + 1)  # what was done: CMA-ES may have stopped before the cap
         if "error" in r:
             raise UserError(f"the best candidate fails when run again ({r['error']}): check the parameter ranges")
         rec.write("/identify/best", 0.0, {"cost": c, "values": v, **_flat(r)})
@@ -684,6 +690,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
             "range_hi": p.hi,
             "candidates_in_region": int(len(near)),
         }
+        row["at_edge"] = _at_edge(p, best_values[i])
         if truth is not None:
             row["truth"] = float(truth[i])
             row["error_rel"] = (best_values[i] - truth[i]) / truth[i] if truth[i] else math.nan
@@ -692,9 +699,17 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
     spread_table = pd.DataFrame(spread)
     write_csv(spread_table, out_dir / "spread.csv", index=False, float_format="%.6g")
     overrides = {p.path: _as_setting(setting(cfg, p.path), v) for p, v in zip(specs, best_values, strict=True)}
+    edges = [
+        f"{r['parameter']} = {r['best']:.4g} at its range's {r['at_edge']} end ({r['range_lo']:g}-{r['range_hi']:g})"
+        for r in spread
+        if r["at_edge"]
+    ]
+    for edge in edges:  # the best may lie beyond: the range, not the data, stopped the fit
+        print(f"warning: {edge}: the best may lie beyond it; widen the range", file=sys.stderr)
     write_text(
         out_dir / "fit.yaml",
         "# Written by `slot run experiment=identify`: the best values, as overrides (key=value on the command line)\n"
+        + "".join(f"# at the edge: {edge}: the best may lie beyond it\n" for edge in edges)
         + yaml.safe_dump({"cost": best_cost, "overrides": overrides}, sort_keys=False, width=120),
     )
     metrics = {
@@ -708,6 +723,19 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
     write_json(out_dir / "metrics.json", metrics)
     plot_identify(candidates, [p.path for p in specs], spread_table, res, out_dir / "fig_identify.png")
     return metrics
+
+
+EDGE = 0.01  # of a range's width (in the space it is searched in): a best value this close to an end is at it
+
+
+def _at_edge(spec: ParameterSpec, value: float) -> str:
+    """ "lo" or "hi" where ``value`` sits within :data:`EDGE` of that end of ``spec``'s range, else ""."""
+    lo, hi, v = (math.log(x) for x in (spec.lo, spec.hi, value)) if spec.log else (spec.lo, spec.hi, value)
+    if v - lo <= EDGE * (hi - lo):
+        return "lo"
+    if hi - v <= EDGE * (hi - lo):
+        return "hi"
+    return ""
 
 
 def _as_setting(current: Any, value: float) -> Any:

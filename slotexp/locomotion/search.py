@@ -85,7 +85,8 @@ def search(
 
     With ``fixed_phases`` the phases stay as given (only bases and amplitudes move).
     ``bounds`` (lower, upper) default to a gait vector's; any other search passes its own.
-    The start is evaluated first (one more evaluation than ``max_evals``). Returns the
+    The start is evaluated first (one more evaluation than ``max_evals``); ``max_evals`` caps the
+    generations' evaluations (only whole generations that fit are run). Returns the
     best cost seen and its vector; ``on_generation(generation, xs, costs)`` sees every
     generation (logging, progress).
     """
@@ -105,7 +106,7 @@ def search(
     x0 = np.asarray(x0, float)
     best = (float(list(evaluate([x0]))[0]), x0)  # the start is a candidate too: the search never returns worse
     generation = 0
-    while not es.stop() and es.countevals < max_evals:
+    while not es.stop() and es.countevals + es.popsize <= max_evals:
         xs = es.ask()
         if fixed_phases is not None:
             xs = [np.concatenate([x[:8], fixed_phases]) for x in xs]
