@@ -32,7 +32,9 @@ from .composition import validate
 from .configtree import CONF_DIR
 from .errors import UserError, missing_extra
 
-GROUPS = ("robot", "gait", "solver", "plant", "controller", "library", "experiment", "scenario", "actuation")
+GROUPS = (
+    "robot", "gait", "solver", "plant", "controller", "library", "experiment", "scenario", "actuation", "schedule",
+)  # fmt: skip
 HARDWARE_GROUPS = ("robot", "gait", "solver", "actuation", "plant", "controller", "library", "hardware", "odometry")
 HARDWARE_CONFIG = "hardware_config"
 HELP_FLAGS = {"--hydra-help", "--help", "-h", "--shell-completion", "-sc"}
@@ -175,8 +177,17 @@ def register_schemas() -> None:
     register_hardware_schemas()
 
 
-def group_options(group: str) -> list[str]:
-    return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
+def group_options(group: str, search: tuple[Path, ...] = ()) -> list[str]:
+    """A config group's options: the files in ``conf/<group>/`` and in each of ``search`` (a user's own config
+    directories, ``hydra.searchpath=[file://DIR]``)."""
+    return sorted({p.stem for root in (CONF_DIR, *search) for p in (Path(root) / group).glob("*.yaml")})
+
+
+def _search_dirs(overrides: list[str]) -> tuple[Path, ...]:
+    """The directories ``hydra.searchpath=[file://DIR, ...]`` adds to the config tree (pkg:// ones are packages')."""
+    value = _override_value(overrides, "hydra.searchpath") or ""
+    items = [v.strip().strip("'\"") for v in value.strip("[]").split(",") if v.strip()]
+    return tuple(Path(v[len("file://") :]) for v in items if v.startswith("file://"))
 
 
 def load_config(cfg) -> SlotConfig:  # noqa: F821 - forward ref to avoid importing at CLI start
@@ -316,10 +327,12 @@ def precheck(
             values = [o.get_value_element_as_str()] if not o.is_delete() or o.value() is not None else [""]
         group = o.key_or_group.split("@")[0]
         if group in groups:
-            options = group_options(group)
+            search = _search_dirs(overrides)
+            options = group_options(group, search)
             for v in values:
                 if v not in options:
-                    fail(f"unknown {group} {v!r}: choose one of {', '.join(options)} (files in conf/{group}/)")
+                    where = f"conf/{group}/" + "".join(f" or {d}/{group}/" for d in search)
+                    fail(f"unknown {group} {v!r}: choose one of {', '.join(options)} (files in {where})")
         choices.append([_override_text(o, v) if not o.is_delete() else o.input_line for v in values])
     register_schemas()
     subdir_setting = next((o.input_line for o in every if o.key_or_group == "hydra.sweep.subdir"), None)
@@ -334,8 +347,10 @@ def precheck(
                     f"a sweep job's directory name would be {len(subdir.encode())} bytes, over the file system's 255 "
                     "(the job's overrides joined): shorten the values, or add 'hydra.sweep.subdir=${hydra.job.num}'"
                 )
-            try:
-                cfg = compose(config_name, overrides=list(combo))
+            try:  # with the user's own config directories, if any (hydra.searchpath)
+                cfg = compose(
+                    config_name, overrides=[*combo, *(o for o in overrides if o.startswith("hydra.searchpath"))]
+                )
             except (HydraException, OmegaConfBaseException) as exc:
                 fail(_variant_setting_message(exc) or _compose_message(exc))
             except yaml.YAMLError as exc:  # a config file that is not YAML (edited by hand, truncated)

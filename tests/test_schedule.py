@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
@@ -22,7 +23,7 @@ from slotexp.locomotion.schedules import (
 from slotexp.record import read_log
 from slotexp.runlog import load_run
 from slotexp.soft.servo import HornMap
-from tests.helpers import CONF, load, run_on_emulator
+from tests.helpers import CONF, assert_one_line_error, last_line, load, ok, run_on_emulator, slot
 from tests.servo_emulator import OdometryPublisher, ServoEmulator
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "slot_hardware_gaits.yaml"
@@ -172,3 +173,21 @@ def test_foot_strokes_measure_each_feet_travel_and_the_distance_they_would_give_
     assert out["stroke_ceiling_mm"] == pytest.approx(24.0 * np.cos(np.radians(45.0)))
     along = foot_strokes(t, reach, cycle, 3.0, leg_yaw, 45.0)  # FL along the travel, RL and FR across it
     assert along["stroke_ceiling_mm"] == pytest.approx(12.0 + 0.0 * 8.0 + 0.0 * 4.0, abs=1e-9)
+
+
+def test_a_users_own_schedule_in_their_config_directory_plays_like_a_shipped_one(tmp_path: Path):
+    # docs/schedules.md, "Your own schedule": a YAML in <dir>/schedule/, hydra.searchpath and the schedules entry
+    (tmp_path / "myconf" / "schedule").mkdir(parents=True)
+    shipped = (CONF / "schedule" / "forward.yaml").read_text()
+    (tmp_path / "myconf" / "schedule" / "deep_step.yaml").write_text(
+        shipped.replace("name: forward", "name: deep_step").replace("105.0", "95.0")
+    )
+    user = ["hydra.searchpath=[file://myconf]", "+schedule@schedules.deep_step=deep_step"]
+    run = ok(slot("run", "experiment=replay", "plant=cosserat", "experiment.schedules=[deep_step]",
+                  "experiment.gif=false", "experiment.duration=4.2", *user, cwd=tmp_path))  # fmt: skip
+    table = pd.read_csv(Path(last_line(run.stdout)) / "replay.csv")
+    assert list(table["gait"]) == ["deep_step"]
+    wrong = ["hydra.searchpath=[file://myconf]", "+schedule@schedules.deep_step=nothere"]
+    unknown = slot("run", "experiment=replay", "plant=cosserat", "experiment.schedules=[deep_step]", *wrong,
+                   cwd=tmp_path)  # fmt: skip
+    assert_one_line_error(unknown, "unknown schedule 'nothere'", "deep_step", "myconf/schedule/")
