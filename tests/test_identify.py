@@ -26,6 +26,7 @@ from slotexp.jobs.identify import (
     write_track_csv,
 )
 from slotexp.parallel import ParallelConfig, pool
+from slotexp.record import read_log
 from tests.helpers import assert_one_line_error, assert_png, load, slot
 
 SMALL = (
@@ -286,3 +287,21 @@ def test_a_best_value_at_its_ranges_end_is_flagged_in_the_searched_space():
     assert _at_edge(damping, 79.26) == "hi" and _at_edge(damping, 5.05) == "lo" and _at_edge(damping, 20.0) == ""
     linear = ParameterSpec(path="robot.servo.horn_zero_deg", lo=80.0, hi=140.0)
     assert _at_edge(linear, 80.5) == "lo" and _at_edge(linear, 82.0) == ""  # 1 % of 60 deg is 0.6 deg
+
+
+def test_the_manuals_track_syntax_works_as_written(tmp_path: Path):
+    # docs/schedules.md: '+experiment.tracks={forward: markers_forward.csv}' (without the + Hydra refuses a new
+    # key of the map, in one line saying to add it)
+    docs = (Path(__file__).parents[1] / "docs" / "schedules.md").read_text()
+    syntax = "+experiment.tracks={forward: markers_forward.csv}"
+    assert f"'{syntax}'" in docs
+    (tmp_path / "markers_forward.csv").write_text("t,com_x,com_y,com_z\n0,0,0,0.04\n1,0.02,0,0.04\n2,0.04,0,0.04\n")
+    (tmp_path / "obs.csv").write_text("gait,compass_deg,distance_per_cycle_mm\nforward,0,50\n")
+    small = ["experiment.max_evals=2", "experiment.popsize=2", "experiment.initial_design=0",
+             "experiment.slice_points=0", "experiment.schedules=[forward]", "experiment.duration=4.2"]  # fmt: skip
+    proc = slot("run", "experiment=identify", "plant=cosserat", "experiment.observations=obs.csv", syntax, *small,
+                cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads(read_log(Path(proc.stdout.strip().splitlines()[-1]) / "logs" / "identify.mcap").metadata[
+        "observations"]["tracks"])  # fmt: skip
+    assert list(meta) == ["forward"] and meta["forward"].endswith("markers_forward.csv")
