@@ -76,7 +76,8 @@ def schema_of(kind: str, name: str) -> type:
 
 def validate(cfg: SlotConfig) -> SlotConfig:
     """Every check of a composed config: the root's fields, each variant's name, schema and ``check``,
-    the robot's model file, and the experiment's; raise :class:`ConfigError` (one line)."""
+    the robot's model file, and the experiment's; raise :class:`ConfigError` (one line). Returns the config
+    each variant's ``derive`` (if it has one) has made of it."""
     check_fields(cfg)
     classes = {kind: variant(kind, getattr(cfg, kind).name) for kind in VARIANT_KINDS}
     for kind, cls in classes.items():
@@ -99,6 +100,10 @@ def validate(cfg: SlotConfig) -> SlotConfig:
         if check is not None:
             check(cfg)
     _check_experiment(cfg)
+    for cls in classes.values():  # what a variant makes of the rest (a schedule names and paces the run)
+        derive = getattr(cls, "derive", None)
+        if derive is not None:
+            cfg = derive(cfg)
     return cfg
 
 

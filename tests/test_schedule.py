@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +14,11 @@ from slotexp.errors import ConfigError
 from slotexp.jobs._logged import run_logged
 from slotexp.jobs.replay import schedule_config
 from slotexp.locomotion.schedules import (
+    cycle_s,
     gait_metrics,
     play,
     schedule_tendon_deg,
+    schedule_velocity,
     step_index,
     with_profile_velocity,
     wrap_deg,
@@ -121,6 +124,23 @@ def test_a_schedule_sends_the_same_goal_ticks_to_the_servos_as_to_the_soft_plant
     np.testing.assert_array_equal(goals, expected_ticks)  # 105 and 255 included: the robot's own range
     assert len(set(map(tuple, goals))) >= 3  # the run went through several steps
     assert not hw["/servos"][[f"clamped.{i}" for i in range(4)]].to_numpy().any()
+    # named and paced as its schedule, in simulation and on the robot: crawl_forward, 40 mm a cycle forward
+    assert cfg.gait.name == "crawl_forward" and result.log_path.name == "hardware.mcap"
+    assert hw.metadata["run"]["gait"] == "crawl_forward"
+    pace = 0.04 / cycle_s(schedule)
+    np.testing.assert_allclose(cfg.gait.velocity, [pace, 0.0], atol=1e-12)
+
+
+def test_a_schedule_run_is_judged_against_the_robots_own_pace_on_its_heading():
+    # it was judged as the walk it carried (crawl_forward: -114 % and -113 deg against the walk's 15 mm/s)
+    played = ("plant=cosserat", "controller=schedule", "mpc.rate_hz=50")
+    right = load(*played, "controller.schedule=right_walk")  # compass 90 (right): -y in the body frame, no distance
+    assert right.gait.name == "right_walk" and right.gait.velocity == [0.0, 0.0]  # the robot's pace is not known
+    forward = load(*played, "controller.schedule=forward")
+    np.testing.assert_allclose(forward.gait.velocity, [0.05 / 0.84, 0.0], atol=1e-12)
+    assert schedule_velocity(replace(forward.schedules["right_walk"], robot_distance_per_cycle_m=0.084)) == (
+        pytest.approx([0.0, -0.1], abs=1e-12)
+    )
 
 
 def test_replay_metrics_measure_whole_cycles_in_both_heading_conventions():

@@ -18,7 +18,7 @@ import numpy as np
 from ..config import ControllerConfig, SlotConfig, check_schedule_reach, check_schedule_ticks
 from ..errors import ConfigError
 from ..gait import contact_plan
-from ..locomotion.schedules import schedule_tendon_deg, step_index
+from ..locomotion.schedules import schedule_tendon_deg, schedule_velocity, step_index
 from ..reference import reference
 from ..robot import RobotModel
 from ..soft.servo import HornMap
@@ -48,6 +48,16 @@ class ScheduleController(MpcController):
             )
         check_schedule_ticks(cfg, cfg.schedules[cfg.controller.schedule], cfg.mpc.rate_hz, "mpc.rate_hz")
         check_schedule_reach(cfg, cfg.controller.schedule)
+
+    @staticmethod
+    def derive(cfg: SlotConfig) -> SlotConfig:
+        """A schedule run is named and judged as its schedule, not as the gait config it happens to carry: the
+        log, the metrics' ``gait`` and the figures take the schedule's name, and the reference path (what the
+        metrics compare the walk with) is the robot's own pace for it (``schedule_velocity``: along its compass
+        heading at its distance per cycle; standing where the distance is not known)."""
+        name = cfg.controller.schedule
+        gait = replace(cfg.gait, name=name, velocity=schedule_velocity(cfg.schedules[name]), yaw_rate=0.0)
+        return replace(cfg, gait=gait)
 
     @classmethod
     def gait_cycle_steps(cls, cfg: SlotConfig) -> int:

@@ -100,7 +100,7 @@ def _ticks(deg: float) -> float:
 
 def validate_hardware(cfg: HardwareSlotConfig) -> HardwareSlotConfig:
     """Ranges (via :func:`slotexp.composition.validate`) and the hardware's cross-field rules."""
-    validate(cfg)
+    cfg = validate(cfg)
     hw, od = cfg.hardware, cfg.odometry
     servo = cfg.robot.servo
     for key, shared in (

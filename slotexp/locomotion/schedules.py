@@ -38,6 +38,16 @@ def cycle_s(schedule: ScheduleConfig) -> float:
     return schedule.step_s * len(schedule.steps)
 
 
+def schedule_velocity(schedule: ScheduleConfig) -> list[float]:
+    """The body-frame velocity (m/s) the robot walks its schedule at: its distance per cycle over the cycle, along
+    its compass heading (clockwise from forward, so the body frame's heading is its negative); zero where the
+    robot's distance is not known."""
+    distance = schedule.robot_distance_per_cycle_m or 0.0
+    heading = -math.radians(schedule.heading_deg or 0.0)
+    speed = distance / cycle_s(schedule)
+    return [speed * math.cos(heading), speed * math.sin(heading)]
+
+
 def with_profile_velocity(cfg: SlotConfig, rpm: float) -> SlotConfig:
     """``cfg`` with the servos' Profile Velocity set as a schedule is played (the robot's gait code: none)."""
     return replace(cfg, robot=replace(cfg.robot, servo=replace(cfg.robot.servo, profile_velocity_rpm=rpm)))
