@@ -512,15 +512,14 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
     saved = np.zeros((4, 3 * n_nodes - 1))  # the implicit step's Newton corrections and halvings (implicit_step)
     # backward Euler (newton > 1): the torso takes each leg's answer to its root's velocity into its own step
     # (root_response): the legs' velocity response (3 per leg), their reaction's (3 x 3), the map from the
-    # torso's velocity (v, w world) to the root's (v_s, v_z, omega), and which legs answered this step
+    # torso's velocity (v, w world) to the root's (v_s, v_z, omega)
     answering = implicit and newton > 1 and not hold_torso
     zcols = np.zeros((n_legs, 3, 3 * n_nodes - 1))
     responses = np.zeros((n_legs, 3, 3))
     jroot = np.zeros((n_legs, 3, 6))
-    answered = np.zeros(n_legs, dtype=np.bool_)
     sub_h = np.zeros(n_legs)  # the step the answer is of (h, or h / m for a step retaken as m)
     dxi = np.zeros(6)
-    du = np.zeros(3)
+    du = np.zeros((n_legs, 3))  # each answering leg's root change over the step, J dxi
     f0s = np.zeros(n_nodes)  # a leg's pressed nodes' friction across the plane, and its slope
     slopes = np.zeros((n_legs, n_nodes))
     pulls = np.zeros(n_legs)  # per leg, the sum of its nodes' F0 + c v (the friction's affine part) ...
@@ -590,8 +589,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
                 )  # fmt: skip
                 # a step retaken as m shorter ones answers through its last: the leg's velocities by z du, its
                 # positions by h / m z du, the torso by the last one's reaction change over 1 / m of the step
-                answered[i] = answering and taken > 0
-                if answered[i]:
+                if answering:
                     sub_h[i] = h / taken
                     root_response(state, leg, par[i], sub_h[i], jac, zcols[i], responses[i])
                     responses[i] *= 1.0 / taken
@@ -709,14 +707,12 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
         if answering:
             # the legs' reactions at the torso's new velocity: R + S J (xi_new - xi), each as J^T R on the torso
             for i in range(n_legs):
-                if answered[i]:
-                    _add_leg_answer(jroot[i], responses[i], h, xi, system, rhs6)
+                _add_leg_answer(jroot[i], responses[i], h, xi, system, rhs6)
             xi_new[:] = np.linalg.solve(system, rhs6)
             for a in range(6):
                 dxi[a] = xi_new[a] - xi[a]
             for i in range(n_legs):
-                if answered[i]:
-                    _answer(jroot[i], responses[i], dxi, du, load, out[i], reaction[i])
+                _answer(jroot[i], responses[i], dxi, du[i], load, out[i], reaction[i])
         else:
             solve_spd(system, rhs6, xi_new)
         # the impulse applied, friction at the velocity it ends with: h load - h C xi_new
@@ -746,13 +742,8 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
                 u = lat_v + (pos[i, k, 1] - p2) * turn + (w0 + pos[i, k, 0]) * xi_new[5]
                 eta[i, k] += h * u
                 pulled += slopes[i, k] * u
-            if answering and answered[i]:
-                # the leg follows its root's change over the step, as its answer said
-                for r in range(3):
-                    du[r] = 0.0
-                    for a in range(6):
-                        du[r] += jroot[i, r, a] * dxi[a]
-                _follow_root(zcols[i], du, sub_h[i], pos[i], vel[i], theta[i], omega[i])
+            if answering:  # the leg follows its root's change over the step, as its answer said
+                _follow_root(zcols[i], du[i], sub_h[i], pos[i], vel[i], theta[i], omega[i])
             if k_lat > 0.0:
                 # the massless patch: spring k (d + h d') = friction sum(F0 + c v) - sum(c j . xi_new) - C d'
                 rate = (pulls[i] - pulled - k_lat * lateral[i, 0]) / (k_lat * h + grips[i])

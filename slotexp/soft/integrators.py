@@ -126,6 +126,21 @@ def _friction_newton_slope(vs, vlat, nrm, mu, v_eps, mu_s, v_s, tangent):
 
 
 @njit(cache=True)
+def _solve_w(lu, jvec, gz, taut, b):
+    """``b`` := W^-1 ``b``: the factored band, then (the cable taut) its rank-one term by Sherman-Morrison, with
+    ``jvec`` = (W^-1 u, grad L) and ``gz`` = 1 + g^T W^-1 u as the factorisation kept them."""
+    banded_substitute(lu, b)
+    if taut:
+        smu, g = jvec[0], jvec[1]
+        gy = 0.0
+        for d in range(b.shape[0]):
+            gy += g[d] * b[d]
+        ratio = gy / gz
+        for d in range(b.shape[0]):
+            b[d] -= ratio * smu[d]
+
+
+@njit(cache=True)
 def _root_rows(kband, x):
     """The root node's two rows of the band ``kband`` (h^2 K) times ``x``: what moving the nodes by h x changes
     in the force on the root (its reaction, times -h)."""
@@ -498,14 +513,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
             rhs[d] += coef * g[d]
     rhs[0] = 0.0
     rhs[1] = 0.0
-    banded_substitute(lu, rhs)
-    if taut:
-        gy = 0.0
-        for d in range(nd):
-            gy += g[d] * rhs[d]
-        ratio = gy / jmeta[i_gz]
-        for d in range(nd):
-            rhs[d] -= ratio * smu[d]
+    _solve_w(lu, jvec, jmeta[i_gz], taut, rhs)
     change = 0.0
     for d in range(2, nd):
         vflat[d] += rhs[d]
@@ -622,12 +630,11 @@ def implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work
     sub_root = np.empty(6)
     end = np.empty(6)
     sums = np.zeros(3)
+    _save(state, start)
     for level in range(MAX_HALVINGS + 1):
         if level > 0:
             _restore(state, start)
             out[O_DIV] = 0.0  # a failed try's blow-up is undone with it
-        else:
-            _save(state, start)
         m = 1 << level
         hs = h / m
         sums[:] = 0.0
@@ -649,12 +656,12 @@ def implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work
             sums[0] += out[O_FX]
             sums[1] += out[O_FZ]
             sums[2] += out[O_M]
-        if converged or level == MAX_HALVINGS:
-            out[O_FX] = sums[0] / m
-            out[O_FZ] = sums[1] / m
-            out[O_M] = sums[2] / m
-            return m
-    return 0
+        if converged:  # always at the last level, whose linearly implicit steps do not iterate
+            break
+    out[O_FX] = sums[0] / m
+    out[O_FZ] = sums[1] / m
+    out[O_M] = sums[2] / m
+    return m
 
 
 @njit(cache=True)
@@ -681,8 +688,10 @@ def root_response(state, leg, par, h, jac, zcols, response):
     taut = abs(jmeta[n + J_CABLE]) == 1.0
     offset = jmeta[n + J_OFFSET]
     k_t = par[P_TK]
-    smu = jvec[0]
     g = jvec[1]
+    zvel = np.empty((n, 2))  # a column's node velocities and element rates, and the root's change, for the
+    zomega = np.empty(n_el)  # damping's reaction (loads.damping_reaction)
+    droot = np.zeros(6)
     for col in range(3):
         z = zcols[col]
         z[:] = 0.0
@@ -700,30 +709,19 @@ def root_response(state, leg, par, h, jac, zcols, response):
         if taut:  # the cable's length at the root turns with it
             for d in range(2, nd):
                 z[d] += h * h * k_t * offset * dw * g[d]
-        banded_substitute(lu, z)
-        if taut:
-            gy = 0.0
-            for d in range(nd):
-                gy += g[d] * z[d]
-            ratio = gy / jmeta[n + J_GZ]
-            for d in range(nd):
-                z[d] -= ratio * smu[d]
+        _solve_w(lu, jvec, jmeta[n + J_GZ], taut, z)
         # the reaction: the root rows of h^2 K, the damping's reaction, the cable's share, the clamp's moment
         d0, d1 = _root_rows(kband, z)
-        fs = -d0 / h
-        fz = -d1 / h
-        px = pz = mom = 0.0
-        for i in range(1, n):
-            qx = mass[i] * (z[3 * i] - (dvs - dw * (pos[i, 1] - pos[0, 1])))
-            qz = mass[i] * (z[3 * i + 1] - (dvz + dw * (pos[i, 0] - pos[0, 0])))
-            px += qx
-            pz += qz
-            mom += (pos[i, 0] - pos[0, 0]) * qz - (pos[i, 1] - pos[0, 1]) * qx
+        for i in range(n):
+            zvel[i, 0] = z[3 * i]
+            zvel[i, 1] = z[3 * i + 1]
         for e in range(n_el):
-            mom += inertia[e] * (z[3 * e + 2] - dw)
-        fs += c * px
-        fz += c * pz
-        m_root = c * mom + k0 * h * (z[2] - dw)
+            zomega[e] = z[3 * e + 2]
+        droot[2], droot[3], droot[5] = dvs, dvz, dw
+        damp_s, damp_z, damp_m = damping_reaction(pos, zvel, zomega, mass, inertia, par, droot)
+        fs = -d0 / h + damp_s
+        fz = -d1 / h + damp_z
+        m_root = damp_m + k0 * h * (z[2] - dw)
         if taut:
             gz = 0.0
             for d in range(nd):
