@@ -103,6 +103,11 @@ def _check_hydra_dirs(overrides: list[str]) -> None:
         fail("hydra.launcher.n_jobs=0 runs no job: give a count of parallel jobs (1, 2, ...) or -1 for every core")
 
 
+def _overwrite(overrides: list[str]) -> bool:
+    """Whether the overrides say ``overwrite=true`` (the root setting, read before Hydra composes anything)."""
+    return (_override_value(overrides, "overwrite") or "false").lower() in ("true", "yes", "on", "1")
+
+
 def _override_value(overrides: list[str], key: str) -> str | None:
     """The value the last ``key=...`` override gives (quotes removed), or None."""
     value = None
@@ -131,10 +136,10 @@ def _claim_run_dir(overrides: list[str], multirun: bool, config_name: str = "con
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
-    from .rundir import claim, claim_sweep, unique
+    from .rundir import claim, unique
 
     key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
-    overwrite = (_override_value(overrides, "overwrite") or "false").lower() in ("true", "yes", "on", "1")
+    overwrite = _overwrite(overrides)
     given = _override_value(overrides, key)
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
@@ -160,7 +165,7 @@ def _claim_run_dir(overrides: list[str], multirun: bool, config_name: str = "con
     if given is None:
         directory = unique(directory)
     try:
-        (claim_sweep if multirun else claim)(directory, overwrite)
+        claim(directory, overwrite, key, "sweep" if multirun else "run's outputs")
     except UserError as exc:
         fail(str(exc))
     if "'" in str(directory):
@@ -817,9 +822,8 @@ def bench(
         out_dir = Path(given)
     else:
         out_dir = unique(Path("experiments") / "bench" / _dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S"))
-    overwrite = (_override_value(overrides, "overwrite") or "false").lower() in ("true", "yes", "on", "1")
     try:
-        claim(out_dir, overwrite, key)
+        claim(out_dir, _overwrite(overrides), key)
     except UserError as exc:
         fail(str(exc))
     rows = []

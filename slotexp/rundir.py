@@ -8,7 +8,7 @@ refuses a directory another process holds, and refuses one that holds anything e
 run's outputs, or unrelated files) unless ``overwrite=true``. An overwrite deletes nothing: the
 earlier contents move aside into ``.replaced/`` and are removed only when the new run
 succeeds (:func:`finish`); a run that fails leaves them there, and says so. ``slot run -m``
-does the same for its sweep directory (:func:`claim_sweep`). A default directory that is
+does the same for its sweep directory. A default directory that is
 taken (two runs started in the same second) gets a suffix (:func:`unique`).
 """
 
@@ -115,21 +115,9 @@ def replaced(directory: Path) -> Path | None:
     return aside if aside.exists() else None
 
 
-def claim(run_dir: Path, overwrite: bool, key: str = "hydra.run.dir") -> None:
-    """Lock ``run_dir`` for this process, and refuse (or, with ``overwrite``, set aside) what it holds."""
-    _lock(run_dir, key)
-    _refuse_or_set_aside(run_dir, _contents(run_dir), overwrite, "run's outputs", key)
-
-
-def earlier_sweep(sweep_dir: Path) -> list[Path]:
-    """What ``sweep_dir`` holds of another sweep: its ``multirun.yaml`` and its jobs' directories."""
-    jobs = sorted(p for p in sweep_dir.iterdir() if (p / ".hydra").is_dir()) if sweep_dir.is_dir() else []
-    marker = sweep_dir / "multirun.yaml"
-    return ([marker] if marker.exists() else []) + jobs
-
-
-def claim_sweep(sweep_dir: Path, overwrite: bool) -> None:
-    """:func:`claim` for ``slot run -m``'s ``hydra.sweep.dir``: a second sweep into it at the same time, or
-    afterwards, would mix its jobs with the first's (``slot summarize`` reads every job directory)."""
-    _lock(sweep_dir, "hydra.sweep.dir")
-    _refuse_or_set_aside(sweep_dir, _contents(sweep_dir), overwrite, "sweep", "hydra.sweep.dir")
+def claim(directory: Path, overwrite: bool, key: str = "hydra.run.dir", what: str = "run's outputs") -> None:
+    """Lock ``directory`` for this process, and refuse (or, with ``overwrite``, set aside) what it holds: another
+    run's outputs, or with ``slot run -m`` another sweep's (its jobs would mix with this one's in ``slot
+    summarize``)."""
+    _lock(directory, key)
+    _refuse_or_set_aside(directory, _contents(directory), overwrite, what, key)
