@@ -132,6 +132,7 @@ def _claim_run_dir(overrides: list[str], multirun: bool, config_name: str = "con
     process's or another run's (unless ``overwrite=true``: then set aside, :mod:`slotexp.rundir`). A default
     directory already taken gets a suffix. Returns the overrides that give Hydra exactly that directory."""
     from hydra import compose, initialize_config_dir
+    from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import HydraException
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
@@ -139,10 +140,7 @@ def _claim_run_dir(overrides: list[str], multirun: bool, config_name: str = "con
     from .rundir import claim, unique
 
     key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
-    overwrite = _overwrite(overrides)
     given = _override_value(overrides, key)
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     plain = []  # the first job's settings: a sweep's directory is the sweep's, whatever each job sets
     for parsed in OverridesParser.create().parse_overrides(overrides):
         if parsed.is_sweep_override():
@@ -164,12 +162,12 @@ def _claim_run_dir(overrides: list[str], multirun: bool, config_name: str = "con
         )
     if given is None:
         directory = unique(directory)
+    if "'" in str(directory):  # before anything is made there
+        fail(f"{key} = {directory}: a directory name with a quote (') cannot be passed to Hydra: rename it")
     try:
-        claim(directory, overwrite, key, "sweep" if multirun else "run's outputs")
+        claim(directory, _overwrite(overrides), key, "sweep" if multirun else "run's outputs")
     except UserError as exc:
         fail(str(exc))
-    if "'" in str(directory):
-        fail(f"{key} = {directory}: a directory name with a quote (') cannot be passed to Hydra: rename it")
     return [o for o in overrides if o.lstrip("+").partition("=")[0] != key] + [f"{key}='{directory}'"]
 
 
@@ -323,6 +321,8 @@ def precheck(
     parsed = [p for p in every if not p.key_or_group.startswith("hydra")]
     choices: list[list[str]] = []
     _check_keys(parsed, groups, root)
+    search = _search_dirs(overrides)  # the user's own config directories, if any (hydra.searchpath)
+    searchpath = [o for o in overrides if o.startswith("hydra.searchpath")]
     for o in parsed:
         if o.is_sweep_override():
             if not multirun:
@@ -332,7 +332,6 @@ def precheck(
             values = [o.get_value_element_as_str()] if not o.is_delete() or o.value() is not None else [""]
         group = o.key_or_group.split("@")[0]
         if group in groups:
-            search = _search_dirs(overrides)
             options = group_options(group, search)
             for v in values:
                 if v not in options:
@@ -352,10 +351,8 @@ def precheck(
                     f"a sweep job's directory name would be {len(subdir.encode())} bytes, over the file system's 255 "
                     "(the job's overrides joined): shorten the values, or add 'hydra.sweep.subdir=${hydra.job.num}'"
                 )
-            try:  # with the user's own config directories, if any (hydra.searchpath)
-                cfg = compose(
-                    config_name, overrides=[*combo, *(o for o in overrides if o.startswith("hydra.searchpath"))]
-                )
+            try:
+                cfg = compose(config_name, overrides=[*combo, *searchpath])
             except (HydraException, OmegaConfBaseException) as exc:
                 fail(_variant_setting_message(exc) or _compose_message(exc))
             except yaml.YAMLError as exc:  # a config file that is not YAML (edited by hand, truncated)

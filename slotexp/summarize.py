@@ -188,16 +188,17 @@ def summarize(multirun_dir: Path) -> pd.DataFrame:
 def missing_jobs(multirun_dir: Path, jobs: list[Path]) -> list[int]:
     """The numbers of the jobs the sweep planned (``multirun.yaml``: every combination of its swept values,
     Hydra's basic sweeper) that have no directory: a sweep stopped before them. Empty where the plan is unknown."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
     try:
         plan = yaml.safe_load((multirun_dir / "multirun.yaml").read_text()) or {}
         task = plan["hydra"]["overrides"]["task"]
-        from hydra.core.override_parser.overrides_parser import OverridesParser
-
         planned = 1
         for o in OverridesParser.create().parse_overrides(list(task)):
             if o.is_sweep_override():
                 planned *= len(list(o.sweep_string_iterator()))
-    except Exception:  # no plan to compare with (an older sweep, another sweeper): nothing to say
+    except (OSError, yaml.YAMLError, KeyError, TypeError, HydraException):  # no plan to compare with: nothing to say
         return []
     found = {int(j.name.split("_", 1)[0]) for j in jobs if j.name.split("_", 1)[0].isdigit()}
     return [n for n in range(planned) if n not in found]
