@@ -3,7 +3,7 @@
 - :data:`STOP_SIGNALS`: Ctrl-C (SIGINT), SIGTERM (a timeout, SLURM, systemd) and SIGHUP (a closed
   terminal, a dropped SSH connection) end every command the same way.
 - :func:`interrupts_between_steps`: a simulated run takes a stop signal
-  between two MPC steps, never inside a compiled kernel, and raises
+  between two MPC steps (or stages of its setup), never inside a compiled kernel, and raises
   :class:`~slotexp.errors.Interrupted` there, so its log closes.
 - :class:`StopFlag`: the hardware loop's version: the first signal asks it to stop at
   the next cycle (torque off, log closed), a second raises at once, unless the shutdown
@@ -39,36 +39,49 @@ PARENT_ENV = "SLOT_SWEEP_PARENT"  # the sweep's parent PID, inherited by its job
 GRACE_S = 20.0  # longest wait for the jobs to close their logs; then the launcher kills what is left
 
 
+_pending: list[int] | None = None  # the stop signals taken while :func:`interrupts_between_steps` is active
+
+
 @contextmanager
 def interrupts_between_steps() -> Iterator[Callable[[], None]]:
-    """Take the stop signals (SIGINT, SIGTERM, SIGHUP) between MPC steps, never inside a compiled kernel.
+    """Take the stop signals (SIGINT, SIGTERM, SIGHUP) at the points the caller checks, never inside a compiled kernel.
 
     Python raises KeyboardInterrupt wherever the interpreter happens to be; inside a
     numba kernel's call back into Python it surfaces as a ``SystemError`` instead,
     which no handler expects, and SIGTERM's and SIGHUP's defaults end the process with the
     log unfinished. While this is active, a stop signal only sets a flag, and the
-    function it yields raises :class:`Interrupted` at the next step boundary (at
-    most one MPC step later), so the caller's ``with`` blocks close their logs.
+    function it yields raises :class:`Interrupted` at the next check (between MPC steps,
+    and between the stages of setting a run up), so the caller's ``with`` blocks close their logs.
+
+    Nested uses share one flag: a run's log holder opens it before the log and the loop inside opens it
+    again, so a signal that arrives while the kernels compile, before the first step, is taken at the
+    first check rather than by the default action (which would leave the log without its summary).
     Outside the main thread it does nothing; a signal that is ignored stays ignored.
     """
+    global _pending
     if threading.current_thread() is not threading.main_thread():
         yield lambda: None
         return
-    pending: list[int] = []
-    previous = {}
-    for signum in STOP_SIGNALS:
-        if signal.getsignal(signum) is not signal.SIG_IGN:
-            previous[signum] = signal.signal(signum, lambda num, frame: pending.append(num))
+    pending = _pending
 
     def check() -> None:
         if pending:
             raise Interrupted(pending[0])
 
+    if pending is not None:  # nested: the outer use holds the handlers and checks once more at its end
+        yield check
+        return
+    pending = _pending = []
+    previous = {}
+    for signum in STOP_SIGNALS:
+        if signal.getsignal(signum) is not signal.SIG_IGN:
+            previous[signum] = signal.signal(signum, lambda num, frame: pending.append(num))
     try:
         yield check
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+        _pending = None
     check()
 
 

@@ -46,21 +46,22 @@ def run_closed_loop(
     sink: Sink | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> RunSummary:
-    robot = build_robot(cfg.robot)
-    x0 = nominal_state(robot) + np.asarray(scenario.offset.as_array())
-    plant = make_plant(cfg, robot, x0)
-    controller = make_controller(cfg, robot)
-    period = controller.period
-    n_steps = int(round(duration * cfg.mpc.rate_hz))
-    rng = np.random.default_rng(scenario_seed(cfg.sim.seed, scenario.name))
-    acting = perturbations(scenario)
-    q_diag = np.asarray(cfg.mpc.q_diag)
-    names = list(robot.names)
-    started = time.perf_counter()
-    done = 0
-    origin = x0[3:5].copy()  # the desired path starts where the robot does
-    scene = scene_track(sink, names, cfg.robot.torso)
-    with interrupts_between_steps() as check_interrupt:
+    with interrupts_between_steps() as check_interrupt:  # a stop signal during setup is taken before the loop
+        robot = build_robot(cfg.robot)
+        x0 = nominal_state(robot) + np.asarray(scenario.offset.as_array())
+        plant = make_plant(cfg, robot, x0)  # compiles (or loads) the plant's kernels
+        check_interrupt()
+        controller = make_controller(cfg, robot)
+        period = controller.period
+        n_steps = int(round(duration * cfg.mpc.rate_hz))
+        rng = np.random.default_rng(scenario_seed(cfg.sim.seed, scenario.name))
+        acting = perturbations(scenario)
+        q_diag = np.asarray(cfg.mpc.q_diag)
+        names = list(robot.names)
+        started = time.perf_counter()
+        done = 0
+        origin = x0[3:5].copy()  # the desired path starts where the robot does
+        scene = scene_track(sink, names, cfg.robot.torso)
         for k in range(n_steps):
             check_interrupt()
             t = k * period

@@ -713,7 +713,7 @@ def test_a_sweeps_jobs_end_when_its_parent_is_killed(tmp_path: Path) -> None:
         tmp_path,
     )
     try:
-        deadline = time.monotonic() + 120  # until both jobs are logging
+        deadline = time.monotonic() + 180  # until both jobs are logging (a clean checkout compiles first)
         logs: list[Path] = []
         while time.monotonic() < deadline and not (len(logs) == 2 and all(p.stat().st_size > 100_000 for p in logs)):
             logs = sorted(sweep.glob("*/logs/*.mcap"))
@@ -721,8 +721,9 @@ def test_a_sweeps_jobs_end_when_its_parent_is_killed(tmp_path: Path) -> None:
         assert proc.poll() is None, proc.stderr.read()
         jobs = [pid for pid in child_processes(proc.pid) if "resource_tracker" not in _cmdline(pid)]
         assert jobs
+        assert len(logs) == 2, "the jobs' logs did not appear within 180 s"
         os.kill(proc.pid, signal.SIGKILL)
-        proc.communicate(timeout=60)
+        _, stderr = proc.communicate(timeout=60)
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and any(_alive(pid) for pid in jobs):
             time.sleep(0.1)
@@ -732,7 +733,7 @@ def test_a_sweeps_jobs_end_when_its_parent_is_killed(tmp_path: Path) -> None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.communicate()
     for log in logs:
-        assert is_closed(log), f"{log} was cut short"
+        assert is_closed(log), f"{log} was cut short; stderr:\n{stderr}"
 
 
 # --------------------------------------------------------------------------- an output directory is never reused

@@ -493,3 +493,39 @@ def test_outputs_get_the_mode_open_would_give_them_and_json_is_strict(tmp_path: 
         "b": [None, 1.5],
         "c": 3,
     }
+
+
+def test_a_stop_signal_while_a_run_sets_up_is_taken_by_the_run_and_closes_its_log(tmp_path: Path, monkeypatch) -> None:
+    # a sweep's job gets SIGTERM when its parent dies, possibly while its kernels still compile: the run, not the
+    # handler in place before it (the default action, which would end the process with the log unfinished),
+    # takes it, stops before the first step and closes the log
+    import slotexp.simulation as simulation
+    from slotexp.errors import Interrupted
+    from slotexp.jobs._logged import run_logged
+
+    from .helpers import load
+
+    build = simulation.make_plant
+
+    def signalled_while_building(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return build(*args, **kwargs)
+
+    monkeypatch.setattr(simulation, "make_plant", signalled_while_building)
+    reached_before: list[int] = []
+
+    def handler_before(num, frame) -> None:
+        reached_before.append(num)
+
+    before = signal.signal(signal.SIGTERM, handler_before)
+    try:
+        cfg = load("experiment=simulate")
+        log = tmp_path / "walk.mcap"
+        with pytest.raises(Interrupted) as stopped:
+            run_logged(cfg, cfg.scenarios["baseline"], 600.0, log, "", "")
+        assert stopped.value.signum == signal.SIGTERM
+        assert reached_before == []
+        assert is_closed(log)
+        assert signal.getsignal(signal.SIGTERM) is handler_before  # back in place after the run
+    finally:
+        signal.signal(signal.SIGTERM, before)

@@ -23,7 +23,7 @@ from ..config import ScenarioConfig, SlotConfig
 from ..errors import Interrupted
 from ..parallel import n_workers
 from ..record import Recorder
-from ..signals import STOP_SIGNALS
+from ..signals import STOP_SIGNALS, interrupts_between_steps
 from ..simulation import RunSummary, run_closed_loop
 from ..telemetry import Tee
 
@@ -96,7 +96,8 @@ def run_logged(
             "started_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         },
     }
-    with Recorder(log_path, metadata=meta) as rec:
+    # opened before the log: a stop signal while the run sets up (kernels compiling) closes the log too
+    with interrupts_between_steps(), Recorder(log_path, metadata=meta) as rec:
         sink = rec if live is None else Tee(rec, live)
         summary = run_closed_loop(cfg, scenario, duration, sink, progress)
         rec.add_metadata(
