@@ -5,19 +5,23 @@ leg, and horizontal motion comes from the gait's stick-slip. What the MPC's plan
 asks for is used where the legs can give it:
 
 - **Horizontal forces and yaw moment.** The plan's first forces give the body a
-  planned acceleration a (and yaw acceleration alpha); each step the gait command
-  moves by a fraction of the velocity change the MPC plans,
-  ``v_cmd += velocity_gain * T * a`` (body frame) and
-  ``yaw_cmd += yaw_gain * T * alpha``, starting from the reference and clipped to
-  what the library measured (its envelope). The gait is a velocity source, so
-  accumulating the planned changes is integral action on the MPC's own velocity
-  and position errors: a gait slower than the library says, a heading that drifts
-  or a push off the path keep the MPC planning forces, and the command moves until
-  they vanish. The yaw part is off by default (``yaw_gain = 0``): the planned yaw
-  moment follows the legs' lever arms as much as the yaw error, its integral wound
-  up, and the turning it mixed in stopped the walk (measured: a 45 s walk at
-  20 mm/s made 5 mm/s with ``yaw_gain = 0.005``, 20.3 mm/s with 0). Heading is
-  held by the heading loop below instead.
+  planned acceleration a (and yaw acceleration alpha); with ``velocity_gain`` > 0 each
+  step the gait command moves by a fraction of the velocity change the MPC plans,
+  ``v_cmd += velocity_gain * T * a`` (body frame), and with ``yaw_gain`` > 0
+  ``yaw_cmd += yaw_gain * T * alpha``, clipped to what the library measured (its
+  envelope). Both are off by default. The planned horizontal forces are bounded by
+  the friction cones of whichever legs the gait's phase puts in stance, so their mean
+  is biased: over 120 s of omni60 at ``velocity_gain`` 0.02 their 10-s means pointed
+  anywhere, backwards included, and the robot fell 400 mm behind its path. The
+  planned yaw moment follows the legs' lever arms as much as the yaw error; its
+  integral wound up and the turning it mixed in stopped the walk (a 45 s walk at
+  20 mm/s made 5 mm/s with ``yaw_gain = 0.005``). Path and heading are held by the
+  two loops below instead.
+- **Path.** A blend of two gaits walks off its measured direction, and a gait on
+  another model at another speed. A PI loop on the cycle-mean path error adds a
+  world-frame correction to the reference velocity, turned into the body frame by the
+  measured yaw (:mod:`slotexp.locomotion.path`): omni60's path RMSE 4.9 mm over 45 s
+  and 5.2 mm over 120 s (14.0 and 189 mm through the MPC's planned accelerations).
 - **Heading.** A PI loop on the measured heading error (averaged over
   ``heading_cycles`` gait cycles) leans the body onto the legs left or right of the
   direction of travel (:mod:`slotexp.locomotion.heading`: feet sliding across their
@@ -82,7 +86,9 @@ import numpy as np
 from ..body import rot_z
 from ..config import SlotConfig, num_field
 from ..locomotion.heading import MIN_SPEED, HeadingLoop, lean_pattern
+from ..locomotion.path import PathLoop
 from ..metrics import wrap_angle
+from ..reference import desired_path
 from ..robot import RobotModel
 from . import CONTROLLERS
 from ._gait import GaitController, GaitControllerConfig
@@ -117,7 +123,7 @@ class GaitMpcConfig(GaitControllerConfig):
 
     name: str = "gait_mpc"
     # each step adds this fraction of the MPC's planned change of velocity (and yaw rate) to the gait command
-    velocity_gain: float = num_field(0.02, lo=0.0, hi=1.0, unit="")
+    velocity_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
     yaw_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
     # the fraction of the legs' common normal-force offset (height) applied each step; the rest, and the legs'
     # differences (attitude), are averaged over offset_cycles gait cycles
@@ -132,6 +138,10 @@ class GaitMpcConfig(GaitControllerConfig):
     heading_ki: float = num_field(1.0, lo=0.0, hi=100.0, unit="deg of tendon per deg s")
     max_lean_deg: float = num_field(15.0, lo=0.0, hi=MAX_OFFSET_DEG, unit="deg")
     heading_cycles: int = num_field(2, lo=1, hi=8, unit="cycles")  # the heading error is averaged over these
+    # path feedback (slotexp/locomotion/path.py): path_kp times the cycle-mean path error plus path_ki times its
+    # integral, turned into the body frame by the measured yaw, is added to the command the MPC's plan moved
+    path_kp: float = num_field(1.0, lo=0.0, hi=10.0, unit="1/s")
+    path_ki: float = num_field(0.05, lo=0.0, hi=10.0, unit="1/s^2")
 
 
 @CONTROLLERS.register()
@@ -149,6 +159,8 @@ class GaitMpcController(GaitController):
         window = ctrl.heading_cycles * self.gait_cycle_steps(cfg)
         self.heading = HeadingLoop(ctrl.heading_kp, ctrl.heading_ki, ctrl.max_lean_deg, self.period, window)
         self.walking = bool(np.hypot(*cfg.gait.velocity) >= MIN_SPEED)  # the reference travels
+        self.planned = self.velocity.copy()  # the command moved by the MPC's planned accelerations alone
+        self.path = PathLoop(ctrl.path_kp, ctrl.path_ki, self.gait_cycle_steps(cfg), self.period)
         legs = robot.feet_body[:, :2] - robot.corners_body[:, :2]
         self.leg_yaw = np.arctan2(legs[:, 1], legs[:, 0])  # each leg's direction out of the body, rad
 
@@ -160,10 +172,14 @@ class GaitMpcController(GaitController):
         torque_z = float(np.sum(lever[:, 0] * forces[:, 1] - lever[:, 1] * forces[:, 0]))
         yaw_accel = np.degrees(torque_z / self.robot.inertia_body[2, 2])
         if self.walking:  # standing, the gait stands: its small corrective strokes shuffled the robot (docstring)
-            velocity = self.velocity + ctrl.velocity_gain * self.period * accel_body
-            speed = float(np.hypot(*velocity))
-            top = self.library.max_speed(float(np.degrees(np.arctan2(velocity[1], velocity[0]))))
-            self.velocity = velocity * (min(1.0, top / speed) if speed > 0 else 1.0)
+            self.planned = self._in_envelope(self.planned + ctrl.velocity_gain * self.period * accel_body)
+            self.velocity = self.planned
+            if self.path.active:
+                if self.origin is None:  # called on its own (step() sets it on the first step)
+                    self.origin = x[3:5].copy()
+                t = self.steps * self.period
+                error = desired_path(self.origin, self.cfg.gait, np.array([t]))[0] - x[3:5]
+                self.velocity = self.path.command(error, float(x[2]), self.planned, self._in_envelope)
         limit = self.library.max_yaw_rate_dps
         self.yaw_rate = float(np.clip(self.yaw_rate + ctrl.yaw_gain * self.period * yaw_accel, -limit, limit))
         offsets = without_twist((forces[:, 2] - self.weight / 4.0) / self.cfg.robot.actuation.slope_n_per_deg, lever)
@@ -182,6 +198,12 @@ class GaitMpcController(GaitController):
         offset = at_once + np.mean(self.cycle_offsets, axis=0) + self.trim + lean * pattern
         return np.clip(offset, -MAX_OFFSET_DEG, MAX_OFFSET_DEG)
 
+    def _in_envelope(self, velocity: np.ndarray) -> np.ndarray:
+        """A body-frame velocity command (m/s) scaled down to the library's envelope in its direction."""
+        speed = float(np.hypot(*velocity))
+        top = self.library.max_speed(float(np.degrees(np.arctan2(velocity[1], velocity[0]))))
+        return velocity * (min(1.0, top / speed) if speed > 0 else 1.0)
+
     def _lean(self, x: np.ndarray) -> tuple[float, np.ndarray]:
         """The heading loop's lean (deg of tendon) and its per-leg pattern for the commanded direction (4,)."""
         yaw_des = self.cfg.gait.yaw_rate * self.steps * self.period  # the reference's heading (slotexp/reference.py)
@@ -194,4 +216,5 @@ class GaitMpcController(GaitController):
         return lean, lean_pattern(self.leg_yaw, float(np.arctan2(self.velocity[1], self.velocity[0])))
 
     def extra_telemetry(self) -> dict:
-        return {"heading_error_deg": self.heading.error_deg, "lean_deg": self.heading.lean}
+        heading = {"heading_error_deg": self.heading.error_deg, "lean_deg": self.heading.lean}
+        return {**heading, "path_error_m": self.path.error}
