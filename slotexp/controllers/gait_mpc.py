@@ -5,23 +5,30 @@ leg, and horizontal motion comes from the gait's stick-slip. What the MPC's plan
 asks for is used where the legs can give it:
 
 - **Horizontal forces and yaw moment.** The plan's first forces give the body a
-  planned acceleration a (and yaw acceleration alpha); with ``velocity_gain`` > 0 each
-  step the gait command moves by a fraction of the velocity change the MPC plans,
-  ``v_cmd += velocity_gain * T * a`` (body frame), and with ``yaw_gain`` > 0
-  ``yaw_cmd += yaw_gain * T * alpha``, clipped to what the library measured (its
-  envelope). Both are off by default. The planned horizontal forces are bounded by
-  the friction cones of whichever legs the gait's phase puts in stance, so their mean
-  is biased: over 120 s of omni60 at ``velocity_gain`` 0.02 their 10-s means pointed
-  anywhere, backwards included, and the robot fell 400 mm behind its path. The
-  planned yaw moment follows the legs' lever arms as much as the yaw error; its
-  integral wound up and the turning it mixed in stopped the walk (a 45 s walk at
-  20 mm/s made 5 mm/s with ``yaw_gain = 0.005``). Path and heading are held by the
-  two loops below instead.
-- **Path.** A blend of two gaits walks off its measured direction, and a gait on
-  another model at another speed. A PI loop on the cycle-mean path error adds a
-  world-frame correction to the reference velocity, turned into the body frame by the
-  measured yaw (:mod:`slotexp.locomotion.path`): omni60's path RMSE 4.9 mm over 45 s
-  and 5.2 mm over 120 s (14.0 and 189 mm through the MPC's planned accelerations).
+  planned acceleration a (and yaw acceleration alpha); each step the gait command
+  moves by a fraction of the velocity change the MPC plans,
+  ``v_cmd += velocity_gain * T * a`` (body frame) and
+  ``yaw_cmd += yaw_gain * T * alpha``, starting from the reference and clipped to
+  what the library measured (its envelope). The gait is a velocity source, so
+  accumulating the planned changes is integral action on the MPC's own velocity
+  and position errors: a gait slower than the library says, a heading that drifts
+  or a push off the path keep the MPC planning forces, and the command moves until
+  they vanish. The yaw part is off by default (``yaw_gain = 0``): the planned yaw
+  moment follows the legs' lever arms as much as the yaw error, its integral wound
+  up, and the turning it mixed in stopped the walk (measured: a 45 s walk at
+  20 mm/s made 5 mm/s with ``yaw_gain = 0.005``, 20.3 mm/s with 0). Heading is
+  held by the heading loop below instead.
+- **Path (an option, off by default).** With ``path_kp`` or ``path_ki`` > 0 a PI loop
+  on the cycle-mean path error adds a world-frame correction, turned into the body
+  frame by the measured yaw (:mod:`slotexp.locomotion.path`). The planned horizontal
+  forces are bounded by the friction cones of whichever legs the phase puts in stance,
+  and over 120 s of omni60 their 10-s means pointed anywhere while the robot fell
+  400 mm behind; with the loop (1 /s, 0.05 /s^2, ``velocity_gain`` 0) omni60 held its
+  line within 5.2 mm for 120 s. It is not the default because it drives the command
+  to the library's envelope whenever the robot falls behind, and a gait at full
+  stroke with the closed loop's offsets on top is slower than the library measured it
+  open loop: the diagonal headings made 12.4-13.3 of 15 mm/s, and after a sideways push
+  the walk stayed 14 mm off its line and 70 mm behind (results/README.md).
 - **Heading.** A PI loop on the measured heading error (averaged over
   ``heading_cycles`` gait cycles) leans the body onto the legs left or right of the
   direction of travel (:mod:`slotexp.locomotion.heading`: feet sliding across their
@@ -123,7 +130,7 @@ class GaitMpcConfig(GaitControllerConfig):
 
     name: str = "gait_mpc"
     # each step adds this fraction of the MPC's planned change of velocity (and yaw rate) to the gait command
-    velocity_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
+    velocity_gain: float = num_field(0.02, lo=0.0, hi=1.0, unit="")
     yaw_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
     # the fraction of the legs' common normal-force offset (height) applied each step; the rest, and the legs'
     # differences (attitude), are averaged over offset_cycles gait cycles
@@ -140,8 +147,8 @@ class GaitMpcConfig(GaitControllerConfig):
     heading_cycles: int = num_field(2, lo=1, hi=8, unit="cycles")  # the heading error is averaged over these
     # path feedback (slotexp/locomotion/path.py): path_kp times the cycle-mean path error plus path_ki times its
     # integral, turned into the body frame by the measured yaw, is added to the command the MPC's plan moved
-    path_kp: float = num_field(1.0, lo=0.0, hi=10.0, unit="1/s")
-    path_ki: float = num_field(0.05, lo=0.0, hi=10.0, unit="1/s^2")
+    path_kp: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s")
+    path_ki: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s^2")
 
 
 @CONTROLLERS.register()

@@ -3,28 +3,29 @@
 Why a path loop. A library gait is a velocity source in the body frame, and what it makes
 is not what the library measured once it is blended, steered or played on another model:
 the 45/90-deg cycle blend that makes omni60 walks 5-25 deg off its command, and 20-40 %
-slower, depending on how its cycles fall. Before this loop the command moved by the MPC's
-planned accelerations (``controller.velocity_gain``, now 0 by default). That corrects the
-bias only on average, and the plan's horizontal forces are bounded by the friction cones of
-whichever legs the gait's phase puts in stance, so their mean is biased too: over 120 s of
-omni60 their 10-s means pointed anywhere, backwards included, while the robot fell 400 mm
-behind. The path loop measures the error itself and adds
+slower, depending on how its cycles fall. ``gait_mpc`` moves the command by the MPC's
+planned accelerations (``controller.velocity_gain``), which corrects that only on average:
+the plan's horizontal forces are bounded by the friction cones of whichever legs the
+gait's phase puts in stance, so their mean is biased too, and over 120 s of omni60 their
+10-s means pointed anywhere, backwards included, while the robot fell 400 mm behind. The
+path loop measures the error itself and adds
 
     dv_world = kp e + ki integral(e dt),    dv_body = R(-yaw) dv_world
 
-to the reference's body-frame velocity, with e the path error (desired minus measured
-position) averaged over the last gait cycle (a gait surges and sways within each), yaw the
-cycle-mean measured yaw, and the integral held while the command is clipped to the
-library's envelope (no wind-up). The proportional part returns the robot to its line; the
-integral holds the direction and speed bias of whatever blend is playing, which the blend's
-measured headings cannot know.
+to the command, with e the path error (desired minus measured position) averaged over the
+last gait cycle (a gait surges and sways within each), yaw the cycle-mean measured yaw, and
+the integral held while the command is clipped to the library's envelope (no wind-up). The
+proportional part returns the robot to its line; the integral holds the direction and speed
+bias of whatever blend is playing, which the blend's measured headings cannot know.
 
-Measured (default model; ``controller.path_kp`` 1 /s, ``path_ki`` 0.05 /s^2): omni60 at
-15 mm/s, path RMSE 4.9 mm over 45 s and 5.2 mm over 120 s (14.0 and 189 mm before); Table I
-walking settles in all six deterministic scenarios, as before. Gains of 0.4 and 0.02 with the
-MPC's part kept (0.02) held omni60 for 45 s (8.2 mm) but not for 120 s (45 mm, still growing
-at 60 s); the loop alone at 0.2-0.6 /s left Table I's Baseline 1.1-1.2 % of its maximum at
-the end, just outside the 1 % that counts as settled.
+Measured (default model; ``controller.path_kp=1 controller.path_ki=0.05
+controller.velocity_gain=0``): omni60 at 15 mm/s, path RMSE 4.9 mm over 45 s and 5.2 mm
+over 120 s (14.0 and 189 mm without); Table I walking settles in all six deterministic
+scenarios. Why it is an option, not the default: behind its path the loop drives the
+command to the library's envelope, where a gait at full stroke with the closed loop's
+offsets on top is slower than the library measured it open loop (the 45-deg gait makes
+21.3 mm/s open loop at full stroke, 12.4 in this loop), so the diagonal headings made
+12.4-13.3 of 15 mm/s and a sideways push left the walk 14 mm off its line after 12 s.
 """
 
 from __future__ import annotations
