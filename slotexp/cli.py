@@ -673,12 +673,17 @@ def _hardware_task(cfg) -> None:
     from .hardware.config import load_hardware_config
     from .hardware.run import run_hardware
     from .jobs._logged import git_commit
+    from .rundir import drop_if_unused
     from .signals import STOP_SIGNALS
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    with _one_line_failures(out_dir):
-        hw_cfg = load_hardware_config(cfg)
-        result = run_hardware(hw_cfg, out_dir, OmegaConf.to_yaml(cfg), lambda m: typer.echo(m, err=True), git_commit())
+    try:
+        with _one_line_failures(out_dir):
+            hw_cfg = load_hardware_config(cfg)
+            result = run_hardware(hw_cfg, out_dir, OmegaConf.to_yaml(cfg), _to_stderr, git_commit())
+    except SystemExit:  # failed before the loop (no port, a servo missing): no log, so no run directory either
+        drop_if_unused(out_dir)
+        raise
     try:
         if result.outcome is not None and result.outcome.steps >= 2:
             from .hardware.report import report
@@ -695,6 +700,10 @@ def _hardware_task(cfg) -> None:
         _silence_std_streams()
     if result.exit_code:
         raise SystemExit(result.exit_code)
+
+
+def _to_stderr(message: str) -> None:
+    typer.echo(message, err=True)
 
 
 def _silence_std_streams() -> None:

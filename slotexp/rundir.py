@@ -26,6 +26,8 @@ LOCK = ".slot-run.lock"
 REPLACED = ".replaced"  # an overwritten run's outputs, until the new run succeeds
 TABLES = ("table1.csv", "table1.md", "metrics.json", "fig7_cost.png", "fig8_dcm.png")  # built from a run's logs
 _held: list[IO[str]] = []  # locks this process holds until it ends
+_made: set[Path] = set()  # directories this process's claims created
+BOOKKEEPING = (".hydra", "slot.log", LOCK)  # what a run writes into its directory before any output
 
 
 def earlier_outputs(run_dir: Path) -> list[Path]:
@@ -36,6 +38,8 @@ def earlier_outputs(run_dir: Path) -> list[Path]:
 def _lock(directory: Path, key: str) -> None:
     """Take ``directory``'s lock for the rest of this process, or say that another run holds it."""
     try:
+        if not directory.exists():
+            _made.add(directory.resolve())
         directory.mkdir(parents=True, exist_ok=True)
         handle = open(directory / LOCK, "a+")
     except OSError as exc:  # a file in the way, a read-only file system, a name too long
@@ -107,6 +111,19 @@ def _refuse_or_set_aside(directory: Path, earlier: list[Path], overwrite: bool, 
 def finish(directory: Path) -> None:
     """The run in ``directory`` succeeded: what it replaced can go."""
     shutil.rmtree(directory / REPLACED, ignore_errors=True)
+
+
+def drop_if_unused(directory: Path) -> bool:
+    """Remove ``directory`` if this process's claim created it and it holds only what a run writes before its
+    first output (Hydra's ``.hydra/``, ``slot.log``, the lock): a run that failed at once (``slot hardware``
+    with no serial port) leaves nothing behind. A directory that existed before, or holds anything else (a
+    log, outputs set aside by an overwrite), stays. Returns whether it went."""
+    if directory.resolve() not in _made or not directory.is_dir():
+        return False
+    if any(p.name not in BOOKKEEPING for p in directory.iterdir()):
+        return False
+    shutil.rmtree(directory, ignore_errors=True)
+    return not directory.exists()
 
 
 def replaced(directory: Path) -> Path | None:

@@ -265,11 +265,15 @@ def test_slot_figures_and_validate_work_on_a_hardware_log(dry_run, tmp_path: Pat
     assert rows and all(r["rmse_m"] == 0 for r in rows)
 
 
-def test_missing_serial_port_is_one_line(tmp_path: Path) -> None:
-    assert_one_line_error(
-        slot("hardware", "hardware.port=/dev/no-such-u2d2", f"hydra.run.dir={tmp_path / 'r'}", cwd=tmp_path),
-        "/dev/no-such-u2d2",
-    )
+def test_missing_serial_port_is_one_line_and_leaves_no_run_directory(tmp_path: Path) -> None:
+    # a run that fails before its loop writes no log, so it leaves no directory; one that existed stays
+    made, kept = tmp_path / "r", tmp_path / "kept"
+    kept.mkdir()
+    for run_dir in (made, kept):
+        args = ("hardware", "--dry-run", "hardware.port=/dev/no-such-u2d2", f"hydra.run.dir={run_dir}")
+        assert_one_line_error(slot(*args, cwd=tmp_path), "/dev/no-such-u2d2")
+    assert not made.exists()
+    assert kept.is_dir()
 
 
 def test_a_servo_that_does_not_answer_is_one_line(tmp_path: Path) -> None:
