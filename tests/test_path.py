@@ -55,7 +55,7 @@ def test_the_integral_does_not_wind_up_while_the_envelope_clips_the_command() ->
 
     for _ in range(300):  # far behind: the command is clipped every step
         command = loop.command(np.array([0.5, 0.0]), 0.0, np.array([0.015, 0.0]), envelope)
-    assert np.hypot(*command) == pytest.approx(0.02)
+    assert np.hypot(*command) == pytest.approx(0.02, rel=1e-4)
     held = loop.integral.copy()
     for _ in range(300):
         loop.command(np.array([0.5, 0.0]), 0.0, np.array([0.015, 0.0]), envelope)
@@ -106,3 +106,16 @@ def test_a_blend_of_two_headings_holds_a_straight_line_over_many_cycles(plant: s
     assert cycle[-WINDOW * 10 :].mean() < cycle[half : half + WINDOW * 10].mean() + 0.005  # not growing
     travelled = np.asarray(sink.p[-1]) - np.asarray(sink.p[0])
     assert np.degrees(np.arctan2(travelled[1], travelled[0])) == pytest.approx(60.0, abs=3.0)
+
+
+def test_at_the_envelope_the_correction_across_the_path_is_kept_whole_and_the_one_along_it_gives_way() -> None:
+    # pushed 10 mm to the left of a 20 mm/s walk whose envelope is 20 mm/s: the command goes back across the line
+    # at the full 10 mm/s and forward at what is left (sqrt(20^2 - 10^2)); scaling the whole vector kept 8.9 across
+    loop = PathLoop(kp=1.0, ki=0.0, window_steps=1, period=PERIOD)
+
+    def envelope(v: np.ndarray) -> np.ndarray:
+        speed = np.hypot(*v)
+        return v * min(1.0, 0.02 / speed) if speed > 0 else v
+
+    command = loop.command(np.array([0.0, -0.01]), 0.0, np.array([0.02, 0.0]), envelope)
+    np.testing.assert_allclose(command, [np.sqrt(0.02**2 - 0.01**2), -0.01], rtol=1e-6)

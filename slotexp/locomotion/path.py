@@ -69,8 +69,37 @@ class PathLoop:
 
         integral = self.integral + e * self.period
         wanted = body(integral)
-        clipped = clip(wanted)
+        clipped = _fit(wanted, base_body, clip)
         # conditional integration: not while the command is clipped, unless the step unwinds the integral
         if np.allclose(clipped, wanted) or np.linalg.norm(integral) < np.linalg.norm(self.integral):
             self.integral = integral
-        return clip(body(self.integral))
+        return _fit(body(self.integral), base_body, clip)
+
+
+def _fit(wanted: np.ndarray, base: np.ndarray, clip) -> np.ndarray:
+    """``wanted`` (body frame, m/s) brought inside the envelope ``clip`` by shortening its part along ``base``
+    (the reference's direction) first, keeping the part across it whole: a robot pushed off its line and behind
+    it returns to the line first and catches up after, where scaling the whole vector shrank the sideways
+    correction with the forward one. Where the part across does not fit by itself, the whole is clipped."""
+
+    def inside(v: np.ndarray) -> bool:  # the envelope leaves a command inside it exactly as it is
+        return bool(np.array_equal(clip(v), v))
+
+    if inside(wanted):
+        return wanted
+    norm = float(np.hypot(*base))
+    if norm == 0.0:
+        return clip(wanted)
+    u = base / norm
+    along = float(wanted @ u) * u
+    across = wanted - along
+    if not inside(across):
+        return clip(wanted)
+    lo, hi = 0.0, 1.0  # the largest share of the along part that fits, by bisection (the envelope depends on direction)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if inside(across + mid * along):
+            lo = mid
+        else:
+            hi = mid
+    return across + lo * along
