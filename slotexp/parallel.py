@@ -22,9 +22,11 @@ worker-side set-up.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import multiprocessing as mp
 import os
+import re
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
@@ -36,6 +38,9 @@ from .errors import ConfigError
 from .signals import die_with_parent
 
 ENGINES = ("processes", "dask")
+_ADDRESS = re.compile(
+    r"((tcp|tls|ws|wss|ucx)://)?[A-Za-z0-9._\-]+(:\d{1,5})?|((tcp|tls)://)?\[[0-9A-Fa-f:]+\](:\d{1,5})?"
+)
 
 
 @dataclass
@@ -45,12 +50,19 @@ class ParallelConfig:
     engine: str = choice_field("processes", *ENGINES)
     workers: int = num_field(0, lo=0, unit="processes")  # 0 = one per core (dask with an address: the cluster's)
     address: str | None = None  # engine=dask: a running scheduler, e.g. tcp://host:8786; unset = a local cluster
+    # engine=dask with an address: how long to wait for the scheduler's first worker (a SLURM job may queue)
+    worker_wait_s: float = num_field(60.0, lo=0.0, unit="s")
 
     def check(self) -> None:
         if self.address is not None and self.engine != "dask":
             raise ConfigError(
                 f"experiment.parallel.address is set but the engine is {self.engine!r}: "
                 "add experiment.parallel.engine=dask, or drop the address"
+            )
+        if self.address is not None and not _ADDRESS.fullmatch(self.address):
+            raise ConfigError(
+                f"experiment.parallel.address = {self.address!r} is not a Dask scheduler address: "
+                "give [tcp://]host:port (tls://, ws://, wss:// and ucx:// too), e.g. tcp://10.0.0.5:8786"
             )
 
 
@@ -130,12 +142,19 @@ def _dask_pool(cfg: ParallelConfig, max_tasks: int) -> Iterator[Pool]:
     if cfg.address is not None:
         try:
             client = Client(cfg.address, timeout="20s")
-        except OSError as exc:
+        except (OSError, ValueError, TypeError) as exc:  # nobody there, or an address Dask cannot parse
             raise ConfigError(
                 f"experiment.parallel.address = {cfg.address!r}: no Dask scheduler answers there ({exc}); "
                 "start one (dask scheduler, or dask-jobqueue's SLURMCluster) or drop the address for a local cluster"
             ) from None
         with client:
+            try:  # a scheduler with no workers would take the tasks and never run them
+                client.wait_for_workers(1, timeout=cfg.worker_wait_s)
+            except (TimeoutError, asyncio.TimeoutError):
+                raise ConfigError(
+                    f"the Dask scheduler at {cfg.address} has no workers after {cfg.worker_wait_s:g} s: start some "
+                    f"(dask worker {cfg.address}, or SLURMCluster.scale) or raise experiment.parallel.worker_wait_s"
+                ) from None
             yield _Dask(client, max(1, len(client.scheduler_info().get("workers", {}))))
         return
     workers = n_workers(cfg.workers, max_tasks)

@@ -148,6 +148,24 @@ def test_a_dask_cluster_and_local_processes_evaluate_the_same_candidates(tmp_pat
     pd.testing.assert_frame_equal(a, b)  # the same seeded search, the same arithmetic, wherever it ran
 
 
+def test_a_dask_address_that_is_not_one_gets_one_line(tmp_path: Path):
+    args = ["plant=cosserat", "experiment=identify", "experiment.parallel.engine=dask"]
+    proc = slot("run", *args, "experiment.parallel.address=http://h:1", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    assert_one_line_error(proc, "not a Dask scheduler address", "host:port")
+
+
+def test_a_dask_scheduler_with_no_workers_is_one_clear_error_not_a_hang() -> None:
+    # tasks sent to a scheduler with no workers wait forever: the pool waits worker_wait_s for one, then says so
+    from distributed import LocalCluster
+
+    from slotexp.errors import ConfigError
+
+    with LocalCluster(n_workers=0, dashboard_address=None, processes=True) as empty:
+        cfg = ParallelConfig(engine="dask", address=empty.scheduler_address, worker_wait_s=1.0)
+        with pytest.raises(ConfigError, match="has no workers after 1 s"), pool(cfg, 3):
+            pass
+
+
 def _power(task: tuple[int, float]) -> float:
     return task[0] ** task[1]
 
