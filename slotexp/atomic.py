@@ -6,9 +6,11 @@ is strict (``NaN`` and infinities are written ``null``), so every JSON reader pa
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -27,8 +29,13 @@ _MODE = 0o666 & ~_umask()  # what open() would create; mkstemp makes its files 0
 
 @contextmanager
 def replacing(path: str | Path) -> Iterator[Path]:
-    """A temporary path (same directory, same suffix) to write; it becomes ``path`` when the block ends."""
+    """A temporary path (same directory, same suffix) to write; it becomes ``path`` when the block ends.
+
+    Only a regular file (or a link) is replaced: renaming over ``/dev/null`` or a named pipe would put a file
+    where the device or the pipe was, for every other program on the machine."""
     path = Path(path)
+    if (path.exists() or path.is_symlink()) and not (path.is_symlink() or stat.S_ISREG(path.stat().st_mode)):
+        raise OSError(errno.EINVAL, "not a regular file (a device, a pipe or a socket): give a file name", str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
     os.fchmod(fd, _MODE)

@@ -916,7 +916,11 @@ def layout(
     from .atomic import write_text
     from .layout import SHIPPED
 
-    if out.is_dir():
+    try:
+        is_dir = out.is_dir()
+    except OSError as exc:  # a name too long, a component that is not a directory
+        fail(f"{out}: cannot write the layout ({exc.strerror or exc})")
+    if is_dir:
         fail(f"{out} is a directory: give a file name, e.g. {out / 'slot_layout.json'}")
     check_output_dir(out.parent if str(out.parent) else Path("."), "the layout's directory")
     try:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import base64
 import json
+import os
+import stat
 import struct
 import threading
 import time
@@ -36,7 +38,7 @@ from slotexp.scene import FORCE_SCALE_M_PER_N, SceneTrack, rotation_from_x, stra
 from slotexp.simulation import run_closed_loop
 from slotexp.telemetry import Tee
 from tests import sdk_scene
-from tests.helpers import load
+from tests.helpers import assert_one_line_error, load
 
 LEGS = ("FL", "RL", "RR", "FR")
 
@@ -333,6 +335,12 @@ def test_shipped_layout_is_the_built_one_and_plots_only_what_a_run_logs(soft_log
     assert '"panelType": "ThreeDee"' in panels and '"/scene"' in panels
     bad = slot("layout", tmp_path, cwd=tmp_path)
     assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "Traceback" not in bad.stderr
+    # a named pipe (or /dev/null) is left as it is: the atomic write would have renamed a file over it
+    pipe = tmp_path / "pipe.json"
+    os.mkfifo(pipe)
+    assert_one_line_error(slot("layout", pipe, cwd=tmp_path), "not a regular file")
+    assert stat.S_ISFIFO(pipe.lstat().st_mode)
+    assert_one_line_error(slot("layout", tmp_path / ("a" * 300 + ".json"), cwd=tmp_path), "File name too long")
 
 
 def test_the_live_view_waits_for_a_viewer_then_paces_the_run_and_lingers() -> None:
