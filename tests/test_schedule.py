@@ -211,3 +211,23 @@ def test_a_users_own_schedule_in_their_config_directory_plays_like_a_shipped_one
     unknown = slot("run", "experiment=replay", "plant=cosserat", "experiment.schedules=[deep_step]", *wrong,
                    cwd=tmp_path)  # fmt: skip
     assert_one_line_error(unknown, "unknown schedule 'nothere'", "deep_step", "myconf/schedule/")
+
+
+def test_a_heading_is_defined_only_where_the_cycles_agree_on_a_direction() -> None:
+    from slotexp.locomotion.schedules import gait_metrics
+
+    cycle, n = 0.8, 30
+    t = np.arange(0, n * cycle + 1e-9, cycle / 8)
+    rng = np.random.default_rng(3)
+
+    def walked(per_cycle: np.ndarray) -> np.ndarray:  # the state (n, 12) of a body whose cycles move it so
+        x = np.zeros((len(t), 12))
+        ends = np.vstack([[0.0, 0.0], np.cumsum(per_cycle, axis=0)])
+        for axis in (0, 1):
+            x[:, 3 + axis] = np.interp(t, np.arange(n + 1) * cycle, ends[:, axis])
+        return x
+
+    steady = walked(np.tile([0.001, 0.0002], (n, 1)) + rng.normal(0, 2e-4, (n, 2)))  # 1 mm a cycle, 0.2 scatter
+    shuffling = walked(rng.normal(0, 3e-3, (n, 2)) + [2e-4, 0.0])  # 0.2 mm a cycle under 3 mm of scatter
+    assert gait_metrics(t, steady, cycle, 0.0)["heading_defined"]
+    assert not gait_metrics(t, shuffling, cycle, 0.0)["heading_defined"]

@@ -198,9 +198,12 @@ def replay_markdown(table: pd.DataFrame) -> str:
         else:
             robot, error = f"{r['robot_compass_deg']:.0f}°", ""
         heading_error = "" if math.isnan(r["heading_error_deg"]) else f" ({r['heading_error_deg']:+.0f}°)"
+        ours, ccw = f"{round(r['compass_deg']) % 360}°{heading_error}", f"{r['heading_deg']:+.0f}°"
+        if not r.get("heading_defined", True):  # its cycles do not agree on a direction (gait_metrics)
+            ours, ccw = "— (moves too little)", "—"
         lines.append(
-            f"| {r['gait']} | {robot} | {error}{round(r['compass_deg']) % 360}°{heading_error} "
-            f"| {r['heading_deg']:+.0f}° | {r['distance_per_cycle_mm']:.1f} / {robot_d} | {r['speed_mm_s']:.1f} "
+            f"| {r['gait']} | {robot} | {error}{ours} "
+            f"| {ccw} | {r['distance_per_cycle_mm']:.1f} / {robot_d} | {r['speed_mm_s']:.1f} "
             f"| {r['yaw_rate_deg_s']:+.2f} | {r['heave_mm']:.1f} | {r['stroke_max_mm']:.1f} "
             f"| {r['stroke_ceiling_mm']:.1f} | {r['grip_efficiency']:.2f} |"
         )

@@ -77,12 +77,27 @@ def play(cfg: SlotConfig, names: list[str], duration: float, rate_hz: float) -> 
     return np.arange(n + 1) * period, xs
 
 
+def heading_defined(t: np.ndarray, x: np.ndarray, cycle: float, first: int, last: int) -> bool:
+    """Whether a gait's direction of travel is defined by its cycles ``first`` .. ``last``: their mean
+    displacement is more than twice its standard error (from the cycles' scatter). A gait that barely moves
+    drifts a fraction of a millimetre per cycle in a direction its start and its stick-slip decide, and a
+    heading read from that drift (or compared with the robot's) says nothing about the gait."""
+    bounds = [int(np.argmin(np.abs(t - t[0] - k * cycle))) for k in range(first, last + 1)]
+    steps = np.diff(x[bounds, 3:5], axis=0)  # each cycle's displacement (m)
+    if len(steps) < 2:
+        return bool(len(steps) == 1 and np.linalg.norm(steps[0]) > 0.0)
+    mean = steps.mean(axis=0)
+    standard_error = steps.std(axis=0, ddof=1) / np.sqrt(len(steps))
+    return bool(np.linalg.norm(mean) > 2.0 * np.linalg.norm(standard_error))
+
+
 def gait_metrics(t: np.ndarray, x: np.ndarray, cycle: float, measure_from_s: float) -> dict:
     """Distance per cycle, speed, headings, yaw rate and heave over the whole cycles after ``measure_from_s``.
 
     ``x`` is the state (n, 12) at times ``t``; headings are of the displacement over those
     cycles, in our convention (counter-clockwise from forward) and the robot's compass
-    (clockwise from forward), the robot starting at zero yaw.
+    (clockwise from forward), the robot starting at zero yaw; ``heading_defined`` says whether
+    the cycles agree on it (:func:`heading_defined`).
     """
     first = math.ceil(measure_from_s / cycle - 1e-9)
     last = math.floor((t[-1] - t[0]) / cycle + 1e-9)
@@ -95,6 +110,7 @@ def gait_metrics(t: np.ndarray, x: np.ndarray, cycle: float, measure_from_s: flo
     yaw = np.unwrap(x[:, 2])
     return {
         "cycles": int(cycles),
+        "heading_defined": heading_defined(t, x, cycle, first, last),
         "distance_per_cycle_mm": float(np.linalg.norm(d) / cycles * 1e3),
         "speed_mm_s": float(np.linalg.norm(d) / span * 1e3),
         "heading_deg": heading,  # ours: counter-clockwise from forward
