@@ -23,12 +23,12 @@ asks for is used where the legs can give it:
   frame by the measured yaw (:mod:`slotexp.locomotion.path`). The planned horizontal
   forces are bounded by the friction cones of whichever legs the phase puts in stance,
   and over 120 s of omni60 their 10-s means pointed anywhere while the robot fell
-  400 mm behind; with the loop (1 /s, 0.05 /s^2, ``velocity_gain`` 0) omni60 held its
-  line within 5.2 mm for 120 s. It is not the default because it drives the command
-  to the library's envelope whenever the robot falls behind, and a gait at full
+  400 mm behind; with the loop (1 /s, 0.05 /s^2, ``velocity_gain`` 0) omni60 stayed
+  within 3 mm of its line for 120 s. It is not the default because it drives the
+  command to the library's envelope whenever the robot falls behind, and a gait at full
   stroke with the closed loop's offsets on top is slower than the library measured it
-  open loop: the diagonal headings made 12.4-13.3 of 15 mm/s, and after a sideways push
-  the walk stayed 14 mm off its line and 70 mm behind (results/README.md).
+  open loop: the diagonal headings make 8.8-14.4 % less than commanded
+  (results/README.md).
 - **Heading.** A PI loop on the measured heading error (averaged over
   ``heading_cycles`` gait cycles) leans the body onto the legs left or right of the
   direction of travel (:mod:`slotexp.locomotion.heading`: feet sliding across their
