@@ -315,9 +315,18 @@ def test_the_default_step_walks_as_the_converged_reference_on_a_short_run():
     # The closed-loop walk at the default step and Jacobian age against the exact implicit step at 2.5e-5 s
     # (slot bench leg's reference), after the start-up, which is not step-converged even between 2.5e-5 and
     # 1.25e-5 s (the torso dips up to 22 mm differently in the first 2 s): within the bench's tolerances.
+    # Steered by the MPC's planned accelerations, not the path loop: the path loop's position and integral
+    # carry the start-up's differences into the judged window (there even the reference and its half step
+    # differ by 2.9 % in speed and 5.3 mm in height over 3-6 s), and this is a test of the plant's step.
     from slotexp.bench._accuracy import START_UP_S, TOLERANCE, Case, compare, run_case, with_plant, within
 
-    cfg = load("plant=cosserat")
+    cfg = load(
+        "plant=cosserat",
+        "controller.path_kp=0",
+        "controller.path_ki=0",
+        "controller.velocity_gain=0.02",
+        "controller.attitude_trim=0.2",
+    )
     case = Case("walk", "baseline", (0.02, 0.0), 6.0)
     assert case.judged_from == START_UP_S == 3.0
     assert cfg.plant.jacobian_age > 1  # the default reuses its factored Jacobian
