@@ -180,10 +180,16 @@ def test_a_second_run_on_the_same_port_is_refused(tmp_path: Path) -> None:
         finally:
             _stop_with(first, signal.SIGINT)
         torque = emu.torque()
+        crc_errors = emu.crc_errors
     assert first.returncode == 130
     assert torque == {1: 0, 2: 0, 3: 0, 4: 0}
+    # nothing foreign reached the bus: a second writer's packets would interleave with the first's and fail
+    # their CRC at the servos. The first run's own transactions: a 2-core machine starting two Python processes
+    # beside the 30 Hz loop and the emulator's thread has delayed one reply past its timeout (1 retry, twice in
+    # about ten full runs); a second run on the port fails many
+    assert crc_errors == 0
     summary = read_log(first_dir / "logs" / "hardware.mcap").metadata["summary"]
-    assert summary["comm_errors"] == "0" and summary["comm_retries"] == "0"
+    assert int(summary["comm_errors"]) <= 1 and int(summary["comm_retries"]) <= 1
 
 
 def test_a_killed_process_is_stopped_by_the_bus_watchdog(tmp_path: Path) -> None:
