@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -389,3 +391,18 @@ def test_max_evals_caps_the_search_at_whole_generations():
     bounds = (np.zeros(3), np.ones(3))
     search(evaluate, np.full(3, 0.5), sigma0=0.2, popsize=4, max_evals=10, seed=1, bounds=bounds)
     assert seen == [1, 4, 4]
+
+
+def test_the_library_envelope_passes_through_each_primitive_and_is_what_the_controller_clips_to() -> None:
+    from slotexp.jobs.gait_search import envelope
+    from slotexp.locomotion.library import GaitLibrary
+
+    cfg = load("plant=cosserat")
+    style = cfg.controller.library["walk"]
+    headings, top = envelope(style, TOP)
+    assert headings[0] == 0.0 and headings[-1] == 360.0 and np.all(top > 0)
+    lib = GaitLibrary.from_config(style, 0.0, TOP)
+    for p in lib.translation:  # at a primitive's own heading the envelope is its measured speed
+        assert lib.max_speed(p.heading_deg) == pytest.approx(p.speed_mps, rel=1e-9)
+    np.testing.assert_allclose(top, [lib.max_speed(h) for h in headings])
+    assert envelope(replace(style, primitives=style.primitives[:1]), TOP) is None  # one direction cannot steer

@@ -10,8 +10,11 @@ import pandas as pd
 from .style import new_figure, save
 
 
-def plot_polar(verified: pd.DataFrame, path: str | Path, style: str) -> Path:
-    """Each verified primitive at its measured heading and speed (mm/s); turning ones listed apart."""
+def plot_polar(
+    verified: pd.DataFrame, path: str | Path, style: str, envelope: tuple[np.ndarray, np.ndarray] | None = None
+) -> Path:
+    """Each verified primitive at its measured heading and speed (mm/s); turning ones listed apart; and the
+    ``envelope`` (headings in deg, speeds in m/s) the gait controllers clip their command to, blends included."""
     fig = new_figure(6.5, 6.0)
     ax = fig.add_subplot(projection="polar")
     moving = verified[verified["target"] != "turn"]
@@ -20,7 +23,10 @@ def plot_polar(verified: pd.DataFrame, path: str | Path, style: str) -> Path:
     for t, r, nominal in zip(theta, speed, moving["nominal_heading_deg"].to_numpy(float), strict=True):
         ax.plot([np.radians(nominal), np.radians(nominal)], [0, r], color="0.8", lw=1)
         ax.annotate("", xy=(t, r), xytext=(0, 0), arrowprops={"arrowstyle": "->", "color": "#1f77b4", "lw": 1.5})
-    ax.plot(theta, speed, "o", color="#1f77b4", label="measured (arrow), asked for (grey)")
+    ax.plot(theta, speed, "o", color="#1f77b4", label="primitives: measured (arrow), asked for (grey)")
+    if envelope is not None:
+        headings, top = envelope
+        ax.plot(np.radians(headings), 1e3 * np.asarray(top), "-", color="C1", lw=1.2, label="envelope (blends)")
     ax.set_rlabel_position(100)
     ax.set_title(f"gait library '{style}': speed [mm/s] by heading (body frame)", fontsize=9)
     turning = verified[verified["target"] == "turn"]

@@ -427,9 +427,24 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
     if len(candidates):
         plot_search(candidates, out_dir / "fig_search.png")
     if len(verified):
-        plot_polar(verified, out_dir / "fig_gait_polar.png", exp.style)
+        plot_polar(verified, out_dir / "fig_gait_polar.png", exp.style, envelope(library, cfg.robot.leg.tendon_max_deg))
         write_text(out_dir / "library.md", library_table(verified, exp.style, cfg.sim.dt))
     return result
+
+
+def envelope(library: GaitStyleConfig, top_deg: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The speed (m/s) the gait controllers ask of ``library`` at most in each body-frame heading (deg, 0-360 in
+    2-deg steps): a primitive's own speed along its heading, a blend's between them
+    (:meth:`slotexp.locomotion.library.GaitLibrary.max_speed`); None for a library that cannot steer (fewer
+    than two translating primitives)."""
+    from ..locomotion.library import GaitLibrary
+
+    try:
+        lib = GaitLibrary.from_config(library, 0.0, top_deg)
+    except ConfigError:
+        return None
+    headings = np.arange(0.0, 361.0, 2.0)
+    return headings, np.array([lib.max_speed(h) for h in headings])
 
 
 def library_table(verified: pd.DataFrame, style: str, dt: float) -> str:
