@@ -34,7 +34,11 @@ def replacing(path: str | Path) -> Iterator[Path]:
     Only a regular file (or a link) is replaced: renaming over ``/dev/null`` or a named pipe would put a file
     where the device or the pipe was, for every other program on the machine."""
     path = Path(path)
-    if (path.exists() or path.is_symlink()) and not (path.is_symlink() or stat.S_ISREG(path.stat().st_mode)):
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        mode = stat.S_IFREG  # a new file
+    if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
         raise OSError(errno.EINVAL, "not a regular file (a device, a pipe or a socket): give a file name", str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)

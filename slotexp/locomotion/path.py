@@ -77,6 +77,7 @@ class PathLoop:
         # conditional integration: not while the command is clipped, unless the step unwinds the integral
         if np.allclose(clipped, wanted) or np.linalg.norm(integral) < np.linalg.norm(self.integral):
             self.integral = integral
+            return clipped
         return _fit(body(self.integral), base_body, clip)
 
 

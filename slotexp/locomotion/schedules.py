@@ -77,13 +77,13 @@ def play(cfg: SlotConfig, names: list[str], duration: float, rate_hz: float) -> 
     return np.arange(n + 1) * period, xs
 
 
-def heading_defined(t: np.ndarray, x: np.ndarray, cycle: float, first: int, last: int) -> bool:
-    """Whether a gait's direction of travel is defined by its cycles ``first`` .. ``last``: their mean
-    displacement is more than twice its standard error (from the cycles' scatter). A gait that barely moves
-    drifts a fraction of a millimetre per cycle in a direction its start and its stick-slip decide, and a
-    heading read from that drift (or compared with the robot's) says nothing about the gait."""
-    bounds = [int(np.argmin(np.abs(t - t[0] - k * cycle))) for k in range(first, last + 1)]
-    steps = np.diff(x[bounds, 3:5], axis=0)  # each cycle's displacement (m)
+def heading_defined(positions: np.ndarray) -> bool:
+    """Whether a gait's direction of travel is defined by its cycles, from the body's planar ``positions`` (m)
+    at their boundaries (k + 1, 2): their mean displacement is more than twice its standard error (from the
+    cycles' scatter). A gait that barely moves drifts a fraction of a millimetre per cycle in a direction its
+    start and its stick-slip decide, and a heading read from that drift (or compared with the robot's) says
+    nothing about the gait."""
+    steps = np.diff(positions, axis=0)  # each cycle's displacement (m)
     if len(steps) < 2:
         return bool(len(steps) == 1 and np.linalg.norm(steps[0]) > 0.0)
     mean = steps.mean(axis=0)
@@ -101,8 +101,8 @@ def gait_metrics(t: np.ndarray, x: np.ndarray, cycle: float, measure_from_s: flo
     """
     first = math.ceil(measure_from_s / cycle - 1e-9)
     last = math.floor((t[-1] - t[0]) / cycle + 1e-9)
-    i0 = int(np.argmin(np.abs(t - t[0] - first * cycle)))
-    i1 = int(np.argmin(np.abs(t - t[0] - last * cycle)))
+    bounds = [int(np.argmin(np.abs(t - t[0] - k * cycle))) for k in range(first, last + 1)]  # each cycle's start
+    i0, i1 = bounds[0], bounds[-1]
     cycles = last - first
     span = t[i1] - t[i0]
     d = x[i1, 3:5] - x[i0, 3:5]
@@ -110,7 +110,7 @@ def gait_metrics(t: np.ndarray, x: np.ndarray, cycle: float, measure_from_s: flo
     yaw = np.unwrap(x[:, 2])
     return {
         "cycles": int(cycles),
-        "heading_defined": heading_defined(t, x, cycle, first, last),
+        "heading_defined": heading_defined(x[bounds, 3:5]),
         "distance_per_cycle_mm": float(np.linalg.norm(d) / cycles * 1e3),
         "speed_mm_s": float(np.linalg.norm(d) / span * 1e3),
         "heading_deg": heading,  # ours: counter-clockwise from forward
