@@ -641,6 +641,8 @@ def main(names: list[str]) -> None:
         # re-read before writing, so that two make_results runs side by side (different names) keep both's times
         latest = json.loads(timing_path.read_text()) if timing_path.exists() else {}
         timing_path.write_text(json.dumps({**latest, name: entry}, indent=2) + "\n")
+    # the results manual's tables, from what was just written (docs/results/, `slot manual`)
+    subprocess.run([SLOT, "manual"], cwd=ROOT, check=True)
 
 
 if __name__ == "__main__":

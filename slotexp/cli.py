@@ -946,6 +946,32 @@ def summarize(
     _say(str(multirun_dir))
 
 
+@app.command()
+@_stoppable
+def manual(
+    check: bool = typer.Option(False, "--check", help="Render in memory and fail where a committed page differs."),
+    pages: Path = typer.Option(Path("docs/results"), help="The results manual's pages."),
+    results: Path = typer.Option(Path("results"), help="The result files the tables are made from."),
+) -> None:
+    """Render the results manual's tables (docs/results/*.md) from the files `make results` writes."""
+    from . import manual as pages_of
+
+    try:
+        if check:
+            stale = pages_of.check(pages, results)
+            for r in stale:
+                typer.echo(f"{r.page}: table {r.name!r} differs from its result files", err=True)
+            if stale:  # a check that found differences, not bad input: exit 1
+                typer.echo(f"error: {len(stale)} table(s) out of date: run `slot manual`, commit the pages", err=True)
+                raise SystemExit(1)
+            _say(f"{pages}: every table agrees with {results}")
+        else:
+            changed = pages_of.write(pages, results)
+            _say(*(str(p) for p in changed) or [f"{pages}: every table already agrees with {results}"])
+    except UserError as exc:
+        fail(str(exc))
+
+
 _received: list[int] = []  # stop signals this process has taken (a launcher may re-raise them as plain Ctrl-C)
 
 

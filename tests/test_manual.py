@@ -1,0 +1,115 @@
+"""The results manual's tables are rendered from the result files, and the check catches a page that drifted."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from slotexp import manual
+from slotexp.errors import UserError
+
+REPO = Path(__file__).resolve().parents[1]
+PAGES = REPO / "docs" / "results"
+RESULTS = REPO / "results"
+
+
+def test_every_committed_table_agrees_with_the_committed_result_files() -> None:
+    stale = manual.check(PAGES, RESULTS)
+    assert not stale, [f"{r.page.name}: {r.name}" for r in stale]
+    assert sum(len(manual.render_page(p, RESULTS)) for p in manual.pages(PAGES)) >= 20
+
+
+@pytest.fixture
+def table1(tmp_path: Path) -> tuple[Path, Path]:
+    """The Table I page and the result files it reads, copied."""
+    pages, results = tmp_path / "pages", tmp_path / "results"
+    pages.mkdir()
+    shutil.copy(PAGES / "table1.md", pages)
+    results.mkdir()
+    shutil.copy(RESULTS / manual.TIMING, results)
+    for d in ("perturb", "perturb_cosserat", "perturb_cosserat_15mms", "perturb_cosserat_standstill", "rigid_perturb"):
+        (results / d).mkdir()
+        shutil.copy(RESULTS / d / "metrics.json", results / d)
+    return pages, results
+
+
+def test_one_changed_number_fails_the_check_naming_page_and_table_and_restoring_it_passes(table1) -> None:
+    pages, results = table1
+    assert manual.check(pages, results) == []
+    path = results / "perturb_cosserat" / "metrics.json"
+    original = path.read_text()
+    data = json.loads(original)
+    data["table1"][0]["max_cost"] *= 1.5
+    path.write_text(json.dumps(data))
+    proc = subprocess.run(
+        [sys.executable, "-m", "slotexp.cli", "manual", "--check", "--pages", str(pages), "--results", str(results)],
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode != 0
+    assert "table1.md: table 'Table I, soft plant, walking' differs" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert [r.name for r in manual.check(pages, results)] == ["Table I, soft plant, walking"]
+    path.write_text(original)
+    assert manual.check(pages, results) == []
+
+
+def test_rendering_fills_a_block_from_its_file_and_a_second_render_changes_nothing(table1) -> None:
+    pages, results = table1
+    page = pages / "table1.md"
+    page.write_text(manual.BLOCK.sub(lambda m: f"<!-- table\n{m['spec']}\n-->\n<!-- end table -->", page.read_text()))
+    assert len(manual.check(pages, results)) == 5  # every block is empty now
+    assert manual.write(pages, results) == [page]
+    assert page.read_text() == (PAGES / "table1.md").read_text()
+    assert manual.write(pages, results) == []
+    baseline = json.loads((results / "perturb" / "metrics.json").read_text())["table1"][0]
+    assert f"| baseline | {baseline['max_cost']:.4g} |" in page.read_text()
+    assert "*From `results/perturb/metrics.json`; made by `slot run experiment=perturb" in page.read_text()
+
+
+def _page(tmp_path: Path, spec: str) -> Path:
+    pages = tmp_path / "pages"
+    pages.mkdir(exist_ok=True)
+    (pages / "p.md").write_text(f"# p\n\n<!-- table\n{spec}\n-->\n<!-- end table -->\n")
+    return pages
+
+
+def test_a_claims_verdict_follows_its_number(tmp_path: Path) -> None:
+    results = tmp_path / "results"
+    (results / "run").mkdir(parents=True)
+    (results / "run" / "metrics.json").write_text(json.dumps({"path_rmse_m": 0.0066}))
+    spec = (
+        "name: claims\nclaims:\n  - {claim: path, paper: '35', file: run/metrics.json, field: path_rmse_m,"
+        " scale: 1000, format: .1f, unit: mm, within: [0, 35], why: it slides, page: walking.md}"
+    )
+    pages = _page(tmp_path, spec)
+    manual.write(pages, results)
+    assert "| path | 35 | 6.6 mm | reproduced |" in (pages / "p.md").read_text()
+    (results / "run" / "metrics.json").write_text(json.dumps({"path_rmse_m": 0.077}))
+    assert [r.name for r in manual.check(pages, results)] == ["claims"]
+    manual.write(pages, results)
+    assert "| path | 35 | 77.0 mm | differs: it slides |" in (pages / "p.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("spec", "says"),
+    [
+        ("name: t\nfile: nowhere/metrics.json\ncolumns: [[a, A]]", "cannot read"),
+        ("name: t\nfile: run/metrics.json\ncolumns: [[nope, A]]", "has no field 'nope'"),
+        ("name: t\nfile: run/metrics.json", "has no columns"),
+        ("file: run/metrics.json\ncolumns: [[a, A]]", "has no name"),
+        ("name: t\nruns: [[a, b, c]]\nfile: metrics.json\ncolumns: [[a, A]]", "[label, result dir] pairs"),
+    ],
+)
+def test_a_bad_table_spec_is_one_line_that_names_what_to_fix(tmp_path: Path, spec: str, says: str) -> None:
+    results = tmp_path / "results"
+    (results / "run").mkdir(parents=True)
+    (results / "run" / "metrics.json").write_text(json.dumps([{"a": 1}]))
+    with pytest.raises(UserError, match=None) as err:
+        manual.check(_page(tmp_path, spec), results)
+    assert says in str(err.value) and "\n" not in str(err.value)
