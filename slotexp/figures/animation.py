@@ -30,7 +30,7 @@ def animate(
     legs: dict[str, np.ndarray],
     torso_size: np.ndarray,
     path: str | Path,
-    fps: int = 10,
+    fps: float = 10.0,
     title: str = "",
     com_offset: np.ndarray | None = None,
 ) -> Path:
@@ -71,7 +71,7 @@ def animate(
             leg_side[name].set_data(nodes[k, :, 0], nodes[k, :, 2])
             leg_top[name].set_data(nodes[k, :, 0], nodes[k, :, 1])
         trail.set_data(positions[: k + 1, 0], positions[: k + 1, 1])
-        label.set_text(f"{title}  t = {t[k]:5.2f} s")
+        label.set_text(f"{title};  t = {t[k]:5.2f} s")
         return []
 
     anim = FuncAnimation(fig, draw, frames=len(t), blit=False)
@@ -101,6 +101,11 @@ def animate_log(log_path: str | Path, out: str | Path, seconds: float = 8.0, fps
     step = max(1, int(round(1.0 / (fps * (t[1] - t[0]))))) if len(t) > 1 else 1
     idx = np.arange(0, len(t), step)
     idx = idx[t[idx] <= t[0] + seconds]
+    # frames every `step` samples of the log, played at the rate that shows them in real time (a GIF's frame
+    # times are whole hundredths of a second: the title states the speed that leaves)
+    frame_s = float(t[idx[1]] - t[idx[0]]) if len(idx) > 1 else 1.0 / fps
+    shown_s = max(0.02, round(frame_s, 2))
+    fps = 1.0 / shown_s
     legs = {
         n: shape[[f"{n}.{i}.{j}" for i in range(n_nodes) for j in range(3)]]
         .to_numpy(float)[idx]
@@ -120,6 +125,6 @@ def animate_log(log_path: str | Path, out: str | Path, seconds: float = 8.0, fps
         np.asarray(conf["robot"]["torso"]["size"], dtype=float),
         out,
         fps,
-        title=f"{run.get('gait', '')} gait, {run.get('plant', '')} plant",
+        title=f"{run.get('gait', '')} gait, {run.get('plant', '')} plant, plays at {frame_s / shown_s:.2g}x real time",
         com_offset=np.asarray(conf["robot"]["torso"].get("com_offset", [0.0, 0.0]), dtype=float),
     )

@@ -223,6 +223,14 @@ def setting(cfg: Any, path: str) -> Any:
     return node
 
 
+def setting_unit(cfg: Any, path: str) -> str:
+    """The unit a setting's schema declares (``num_field``'s ``unit``; "" where none, or for a ratio)."""
+    head, _, last = path.rpartition(".")
+    node = setting(cfg, head) if head else cfg
+    found = next((f for f in fields(node) if f.name == last), None) if is_dataclass(node) else None
+    return str(found.metadata.get("unit", "")) if found is not None else ""
+
+
 def with_setting(cfg: Any, path: str, value: float) -> Any:
     """``cfg`` with ``path`` set to ``value`` (every entry of a list setting)."""
     head, _, rest = path.partition(".")
@@ -721,7 +729,15 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         "residuals": res.to_dict(orient="records"),
     }
     write_json(out_dir / "metrics.json", metrics)
-    plot_identify(candidates, [p.path for p in specs], spread_table, res, out_dir / "fig_identify.png")
+    plot_identify(
+        candidates,
+        [p.path for p in specs],
+        spread_table,
+        res,
+        out_dir / "fig_identify.png",
+        log=[p.log for p in specs],
+        units=[setting_unit(cfg, p.path) for p in specs],
+    )
     return metrics
 
 

@@ -126,40 +126,21 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
 
 def report(out_dir: Path, cfg: SlotConfig) -> pd.DataFrame:
     """The table and figure of a replay, from its logs and the schedules' robot evidence."""
+    from rich.console import Console
+    from rich.progress import Progress
+
     exp = cfg.experiment
     logs = {p.stem: p for p in find_logs(out_dir)}
     rows = []
-    for name in exp.schedules:
-        if name not in logs:
-            continue
-        schedule = cfg.schedules[name]
-        run = load_run(logs[name])
-        row = {"gait": name, **gait_metrics(run.t, run.x, cycle_s(schedule), exp.measure_from_s)}
-        row.update(
-            foot_strokes(
-                run.t,
-                feet_reach(run, list(cfg.robot.leg.names)),
-                cycle_s(schedule),
-                exp.measure_from_s,
-                np.radians(cfg.robot.leg.yaw_deg),
-                row["heading_deg"],
-            )
-        )
-        row["grip_efficiency"] = row["distance_per_cycle_mm"] / row["stroke_ceiling_mm"]
-        row["robot_compass_deg"] = schedule.heading_deg
-        row["robot_turn"] = schedule.turn or ""  # a turning gait's spin on the robot (cw, ccw)
-        row["robot_distance_per_cycle_mm"] = (
-            schedule.robot_distance_per_cycle_m * 1e3 if schedule.robot_distance_per_cycle_m is not None else math.nan
-        )
-        row["heading_error_deg"] = (
-            wrap_deg(row["compass_deg"] - schedule.heading_deg) if schedule.heading_deg is not None else math.nan
-        )
-        row["distance_ratio"] = row["distance_per_cycle_mm"] / row["robot_distance_per_cycle_mm"]
-        rows.append(row)
-        if exp.gif:
-            from ..figures.animation import animate_log
-
-            animate_log(run.path, out_dir / f"{name}.gif")
+    # each gait's log read back, measured and (with experiment.gif) animated: tens of seconds a gait
+    with Progress(console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task("report", total=sum(name in logs for name in exp.schedules))
+        for name in exp.schedules:
+            if name not in logs:
+                continue
+            bar.update(task, description=f"report {name:<15}")
+            rows.append(_gait_row(name, logs[name], cfg, out_dir))
+            bar.advance(task)
     table = pd.DataFrame(rows)
     write_csv(table, out_dir / "replay.csv", index=False)
     write_text(out_dir / "replay.md", replay_markdown(table))
@@ -168,6 +149,39 @@ def report(out_dir: Path, cfg: SlotConfig) -> pd.DataFrame:
 
     plot_replay(table, out_dir / "fig_replay.png")
     return table
+
+
+def _gait_row(name: str, log: Path, cfg: SlotConfig, out_dir: Path) -> dict:
+    """One gait's row of the replay table from its log (and its GIF, with experiment.gif)."""
+    exp = cfg.experiment
+    schedule = cfg.schedules[name]
+    run = load_run(log)
+    row = {"gait": name, **gait_metrics(run.t, run.x, cycle_s(schedule), exp.measure_from_s)}
+    row.update(
+        foot_strokes(
+            run.t,
+            feet_reach(run, list(cfg.robot.leg.names)),
+            cycle_s(schedule),
+            exp.measure_from_s,
+            np.radians(cfg.robot.leg.yaw_deg),
+            row["heading_deg"],
+        )
+    )
+    row["grip_efficiency"] = row["distance_per_cycle_mm"] / row["stroke_ceiling_mm"]
+    row["robot_compass_deg"] = schedule.heading_deg
+    row["robot_turn"] = schedule.turn or ""  # a turning gait's spin on the robot (cw, ccw)
+    row["robot_distance_per_cycle_mm"] = (
+        schedule.robot_distance_per_cycle_m * 1e3 if schedule.robot_distance_per_cycle_m is not None else math.nan
+    )
+    row["heading_error_deg"] = (
+        wrap_deg(row["compass_deg"] - schedule.heading_deg) if schedule.heading_deg is not None else math.nan
+    )
+    row["distance_ratio"] = row["distance_per_cycle_mm"] / row["robot_distance_per_cycle_mm"]
+    if exp.gif:
+        from ..figures.animation import animate_log
+
+        animate_log(run.path, out_dir / f"{name}.gif")
+    return row
 
 
 def feet_reach(run, legs: list[str]) -> np.ndarray:
