@@ -353,7 +353,8 @@ RUNS = {
     ],
     # Model options one at a time on the default model (replay: on against off), each for its physical reason
     # (results/README.md, "The robot's own gaits"): the horn zero at eq. 11's standing angle, a stiffer leg (E),
-    # a stiffer tendon, the authors' newer leg length, a lighter torso, its mass centre 15 mm back, a straight leg.
+    # a stiffer tendon, the authors' newer leg length, a lighter torso, its mass centre 15 mm back, a straight leg,
+    # static friction, the leg's root as the authors' newer model mounts it (its underside flush with the torso's).
     **{
         f"replay_{name}": ["experiment=replay", "plant=cosserat", override, "experiment.gif=false"]
         for name, override in {
@@ -365,6 +366,7 @@ RUNS = {
             "com_back15mm": "robot.torso.com_offset=[-0.015,0]",
             "straight_leg": "robot.leg.rest_shape=straight",
             "static_friction0.15": "robot.contact.static_friction=0.15",
+            "root_flush": "robot.leg.root_above_bottom=0.00675",  # the leg's mount as the newer model has it
         }.items()
     },
     # The tendon as a bowstring from a guide on the torso to its anchor on the leg's underside (half the leg's

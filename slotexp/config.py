@@ -115,6 +115,11 @@ class LegConfig:
     density: float = num_field(1200.0, lo=0.0, lo_open=True, unit="kg/m^3")
     # Rest shape z(x) = c3 x^3 + c2 x^2 + c1 x + c0 in the leg plane (root at x = 0).
     rest_shape_coeffs: list[float] = vec_field([6.356, -1.810, 0.0, 0.02175], length=4, unit="m")
+    # The root's mount: its centreline's height above the torso's bottom face (the clamp holds it horizontal,
+    # as the rest shape's zero slope at x = 0 says). 0: ours, the centreline on the face; 0.00675: the authors'
+    # newer model (Modeling-of-SLOT parameters.py, z_off = -BZ / 2 + THICK_FIXED / 2: the leg's underside flush
+    # with the face). Raising the mount lowers the torso on the same legs by as much.
+    root_above_bottom: float = num_field(0.0, lo=0.0, hi=0.034, unit="m")
     rest_shape: str = choice_field("cubic", "cubic", "straight")
     # cosserat: our rod (stretch, shear, bending coupled); paper: eqs. (2)-(4) + restoring spring
     model: str = choice_field("cosserat", "cosserat", "paper")

@@ -38,6 +38,12 @@ def rest_shape_points(coeffs: list[float], length: float, n: int = 400) -> np.nd
     return np.column_stack([np.interp(s_nodes, s, x), np.interp(s_nodes, s, z)])
 
 
+def leg_root_z(cfg: RobotConfig) -> float:
+    """Height (m) of each leg root's centreline relative to the torso's centre: its bottom face, raised by
+    ``robot.leg.root_above_bottom``."""
+    return -cfg.torso.size[2] / 2 + cfg.leg.root_above_bottom
+
+
 def build_robot(cfg: RobotConfig) -> RobotModel:
     """Torso cuboid plus four legs lumped as point masses at their rest-shape centroids.
 
@@ -49,8 +55,10 @@ def build_robot(cfg: RobotConfig) -> RobotModel:
         return RobotModel(**mass_properties(cfg))
     lx, ly, lz = cfg.torso.size
     yaw = np.deg2rad(np.asarray(cfg.leg.yaw_deg, dtype=float))
-    # Each leg sits on the torso's bottom face at the corner its yaw points out of.
-    corners = np.column_stack([np.sign(np.cos(yaw)) * lx / 2, np.sign(np.sin(yaw)) * ly / 2, np.full(4, -lz / 2)])
+    # Each leg sits under the corner its yaw points out of, at the mount's height (leg_root_z).
+    corners = np.column_stack(
+        [np.sign(np.cos(yaw)) * lx / 2, np.sign(np.sin(yaw)) * ly / 2, np.full(4, leg_root_z(cfg))]
+    )
     corners = corners - horizontal(cfg.torso.com_offset)  # relative to the torso's own mass centre
     shape = rest_shape_points(cfg.leg.rest_shape_coeffs, cfg.leg.length)
     reach = shape[-1, 0] - shape[0, 0]

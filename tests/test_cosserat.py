@@ -480,3 +480,20 @@ def test_standing_feet_rest_at_the_default_step():
         ratio.append(np.abs(plant.out[:, O_F]) / plant.out[:, O_N])
     assert np.sqrt(np.mean(np.square(np.concatenate(along)))) < 2e-3
     assert np.max(ratio) < 0.5  # none of the feet slides: |F| < mu N
+
+
+def test_raising_the_legs_mount_lowers_the_torso_by_as_much_and_leaves_the_legs_where_they_were() -> None:
+    """robot.leg.root_above_bottom moves each root up the torso: set down on the same legs, the torso stands that
+    much lower, in the rigid-body model the MPC uses and in the soft plant, and the legs are where they were."""
+    rise = 0.00675
+    cfg, low = _plant()
+    _, high = _plant(f"robot.leg.root_above_bottom={rise}")
+    a, b = build_robot(cfg.robot), build_robot(load("plant=cosserat", f"robot.leg.root_above_bottom={rise}").robot)
+    # the rigid-body model's mass centre: the torso's, lowered, with the legs' lumped masses, which stay; the
+    # roots rise by as much relative to it
+    drop = rise * cfg.robot.torso.mass / a.mass
+    assert b.stance_height == pytest.approx(a.stance_height - drop, abs=1e-12)
+    assert np.allclose(b.corners_body[:, 2] - a.corners_body[:, 2], drop, atol=1e-12)
+    assert np.allclose(b.feet_body - b.corners_body, a.feet_body - a.corners_body, atol=1e-12)
+    assert high.torso[2] == pytest.approx(low.torso[2] - rise, abs=1e-9)
+    assert np.allclose(high.pos, low.pos, atol=1e-4)  # within 0.1 mm: the settling (finite iterations) differs

@@ -44,6 +44,7 @@ from .. import telemetry as T
 from ..config import SlotConfig
 from ..errors import DivergenceError
 from ..plants import TendonCommand
+from ..robot import leg_root_z
 from ..soft.integrators import LegSim, stable_dt
 from ..soft.statics import clamped_leg, set_tendon
 from . import BenchRow, register
@@ -74,7 +75,7 @@ ACCURACY_SETTINGS = (
 
 
 def _loaded_leg(cfg: SlotConfig, jacobian_age: int = 1, newton: int = 1) -> LegSim:
-    sim = clamped_leg(cfg, root_height=cfg.gait.height - cfg.robot.torso.size[2] / 2)
+    sim = clamped_leg(cfg, root_height=cfg.gait.height + leg_root_z(cfg.robot))
     set_tendon(sim, 80.0, cfg.robot.leg.pulley_radius)
     sim.jacobian_age = jacobian_age
     sim.newton = newton

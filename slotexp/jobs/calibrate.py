@@ -18,6 +18,7 @@ from ..atomic import write_csv, write_json, write_text
 from ..config import SlotConfig, num_field
 from ..errors import ConfigError
 from ..record import Recorder, read_log
+from ..robot import leg_root_z
 from ..soft.statics import clamped_leg, set_tendon, settle
 from . import EXPERIMENTS, Experiment
 from ._logged import git_commit
@@ -51,7 +52,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
     from rich.progress import Progress
 
     exp = cfg.experiment
-    root_height = cfg.gait.height - cfg.robot.torso.size[2] / 2
+    root_height = cfg.gait.height + leg_root_z(cfg.robot)
     sim = clamped_leg(cfg, root_height=root_height)
     top = exp.max_deg if exp.max_deg is not None else cfg.robot.leg.tendon_max_deg
     angles = np.linspace(0.0, top, exp.angles)

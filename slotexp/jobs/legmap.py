@@ -19,6 +19,7 @@ from ..atomic import write_csv, write_json
 from ..config import SlotConfig, num_field, vec_field
 from ..errors import ConfigError
 from ..record import Recorder, read_log
+from ..robot import leg_root_z
 from ..soft.legmap import PolyFit, free_foot, stuck_foot
 from . import EXPERIMENTS, Experiment
 from ._logged import git_commit
@@ -66,7 +67,7 @@ def _grids(cfg: SlotConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     angles = np.linspace(0.0, cfg.robot.leg.tendon_max_deg, exp.angles)
     heights = np.linspace(*exp.root_heights, exp.heights)
     forces = np.linspace(*exp.radial_forces, exp.n_forces)
-    stance = cfg.gait.height - cfg.robot.torso.size[2] / 2  # root height under the torso at p_z*
+    stance = cfg.gait.height + leg_root_z(cfg.robot)  # root height under the torso at p_z*
     return angles, heights, forces, stance
 
 

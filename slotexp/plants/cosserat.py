@@ -20,7 +20,7 @@ from ..actuation import tendon_angle_deg
 from ..body import euler_to_quat, horizontal, quat_to_euler, quat_to_rot
 from ..config import PlantConfig, SlotConfig, TorsoConfig, choice_field, num_field
 from ..errors import ConfigError, DivergenceError
-from ..robot import RobotModel
+from ..robot import RobotModel, leg_root_z
 from ..soft.coupled import (
     Robot,
     Settings,
@@ -127,15 +127,16 @@ class CosseratPlant:
         self.torso_mass = cfg.robot.torso.mass + 4 * m.mass[0]
         self.inertia = self.torso_mass / 12.0 * np.diag([ly**2 + lz**2, lx**2 + lz**2, lx**2 + ly**2])
         self.yaw = np.deg2rad(np.asarray(leg_cfg.yaw_deg, dtype=float))
-        # leg roots on the torso's bottom face, relative to the torso's mass centre
+        # leg roots under the torso's corners at the mount's height, relative to the torso's mass centre
+        root_z = leg_root_z(cfg.robot)
         self.corners = np.column_stack(
-            [np.sign(np.cos(self.yaw)) * lx / 2, np.sign(np.sin(self.yaw)) * ly / 2, np.full(4, -lz / 2)]
+            [np.sign(np.cos(self.yaw)) * lx / 2, np.sign(np.sin(self.yaw)) * ly / 2, np.full(4, root_z)]
         ) - horizontal(cfg.robot.torso.com_offset)
         drop = m.rest_pos[0, 1] - m.rest_pos[-1, 1]
         # The torso starts level, with the resting feet just touching the ground; settling lowers it
         # onto the scenario's offset pose (see _settle_legs).
-        z0 = lz / 2 + drop + (x0[5] - robot.stance_height)
-        self.start_pose = np.array([x0[3], x0[4], lz / 2 + drop, 0.0, 0.0, x0[2]])  # position, roll pitch yaw
+        z0 = -root_z + drop + (x0[5] - robot.stance_height)
+        self.start_pose = np.array([x0[3], x0[4], -root_z + drop, 0.0, 0.0, x0[2]])  # position, roll pitch yaw
         self.target_pose = np.array([x0[3], x0[4], z0, *x0[0:3]])
         self.torso = np.concatenate([pose_between(self.start_pose, self.target_pose, 0.0), np.zeros(6)])
         self.momentum = np.zeros(6)  # linear, and angular about the world origin (coupled_steps)
