@@ -571,7 +571,8 @@ def _fail_on_storage(exc: OSError, out_dir: Path | None) -> None:
         if out_dir
         else ""
     )
-    fail(f"{where}{exc.strerror or exc}: free space or write elsewhere (hydra.run.dir=...){kept}")
+    elsewhere = " (hydra.run.dir=...)" if out_dir else ""  # outside a run: the command's own output option
+    fail(f"{where}{exc.strerror or exc}: free space or write elsewhere{elsewhere}{kept}")
 
 
 def _say(*lines: str, out_dir: Path | None = None) -> None:
@@ -865,6 +866,7 @@ def figures(
 
     if held_by_another(run_dir):
         fail(f"{run_dir} is in use by a run that is still writing it: wait for it to finish, then rebuild")
+    check_output_dir(run_dir, "the run's directory")  # before reading its logs: the outputs go back into it
     try:
         if (run_dir / val.INPUTS_FILE).is_file():  # a comparison of given logs: its inputs are the record
             val.rebuild(run_dir)
@@ -966,6 +968,7 @@ def manual(
                 raise SystemExit(1)
             _say(f"{pages}: every table agrees with {results}")
         else:
+            check_output_dir(pages, "--pages")  # before rendering: the tables are written back into the pages
             changed = pages_of.write(pages, results)
             _say(*(str(p) for p in changed) or [f"{pages}: every table already agrees with {results}"])
     except UserError as exc:

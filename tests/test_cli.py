@@ -1061,3 +1061,35 @@ def test_slot_hardware_on_a_full_disk_ends_in_one_line(tmp_path: Path) -> None:
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("error")]
     assert len(errors) == 1 and "No space left on device" in errors[0] and "hardware.mcap" in errors[0], errors
+
+
+@pytest.fixture
+def read_only_dir(tmp_path: Path):
+    """A directory nothing can be created in, holding one page: by its mode for a user, a read-only tmpfs for root
+    (whose writes ignore modes); skipped where root may not mount."""
+    where = tmp_path / "ro"
+    where.mkdir()
+    if os.geteuid() != 0:
+        (where / "page.md").write_text("# page\n")
+        where.chmod(0o555)
+        yield where
+        where.chmod(0o755)
+        return
+    mount = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(where)], capture_output=True)
+    if mount.returncode != 0:
+        pytest.skip("running as root where tmpfs cannot be mounted: no directory here is read-only to root")
+    try:
+        (where / "page.md").write_text("# page\n")
+        subprocess.run(["mount", "-o", "remount,ro", str(where)], check=True, capture_output=True)
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], capture_output=True)
+
+
+@pytest.mark.parametrize("command", [["figures"], ["manual", "--pages"]])
+def test_a_command_that_writes_into_a_read_only_directory_says_so_before_any_work(
+    read_only_dir: Path, command: list[str], tmp_path: Path
+) -> None:
+    proc = slot(*command, str(read_only_dir), cwd=tmp_path)
+    assert_one_line_error(proc, str(read_only_dir), "cannot create anything")
+    assert [p.name for p in read_only_dir.iterdir()] == ["page.md"]
