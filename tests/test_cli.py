@@ -1086,7 +1086,7 @@ def read_only_dir(tmp_path: Path):
         subprocess.run(["umount", str(where)], capture_output=True)
 
 
-@pytest.mark.parametrize("command", [["figures"], ["manual", "--pages"]])
+@pytest.mark.parametrize("command", [["figures"], ["manual", "--pages"]], ids=["figures", "manual"])
 def test_a_command_that_writes_into_a_read_only_directory_says_so_before_any_work(
     read_only_dir: Path, command: list[str], tmp_path: Path
 ) -> None:
