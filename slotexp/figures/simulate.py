@@ -42,6 +42,7 @@ def plot_path(run: RunData, legs: list[str], path: str | Path, snapshots: int = 
     fig = new_figure(8, 9)
     top, err, bottom = fig.subplots(3, 1, height_ratios=[3.2, 1.1, 1])
     picks = np.unique(np.linspace(0, len(run.t) - 1, snapshots).round().astype(int)) if len(run.t) else []
+    labelled: list[np.ndarray] = []  # where a time is written: one label per place (a robot turning in place)
     for k in picks:
         com = run.x[k, 3:5]
         for i, leg in enumerate(legs):
@@ -52,7 +53,9 @@ def plot_path(run: RunData, legs: list[str], path: str | Path, snapshots: int = 
             colour = LEG_COLOURS.get(leg, "m")
             top.plot([com[0], foot[0]], [com[1], foot[1]], color=colour, lw=0.8, alpha=0.45)
             top.plot(*foot, "o", ms=5, mec=colour, mfc="none" if not run.stance[k, i] else colour, alpha=0.8)
-        top.annotate(f"{run.t[k]:.0f} s", com, textcoords="offset points", xytext=(4, -10), fontsize=7, color="0.3")
+        if all(np.hypot(*(com - p)) > 0.01 for p in labelled):
+            top.annotate(f"{run.t[k]:.0f} s", com, textcoords="offset points", xytext=(4, -10), fontsize=7, color="0.3")
+            labelled.append(com)
     top.plot(run.x_ref[:, 3], run.x_ref[:, 4], "k--", lw=1.4, label="desired", zorder=3)
     top.plot(run.x[:, 3], run.x[:, 4], color="#9467bd", lw=1.8, label="simulated", zorder=4)
     for leg in legs:  # the legs' colours, for the plan view and the gait sequence below
