@@ -60,10 +60,15 @@ class Case:
     judged_from: float = START_UP_S
 
 
+# The walks run 20 s and are judged from 8 s: the path loop (controller.path_kp, path_ki) carries the start-up's
+# differences forward through its position error and integral, so over 3-10 s even the reference's half step was
+# 2.9 % off in speed and 2.2 deg in attitude, and from 8 s of a 20 s run 0.0 % and 1.05 deg (results/README.md).
+# The diagonal walks converge at no step (their stick-slip pattern is chosen by the step: the 225-deg walk's half
+# step 39-58 % faster than the reference), so the second walk is the lateral one, which converges.
+WALK_JUDGED_FROM_S = 8.0
 CASES = (
-    Case("walk", "baseline", (0.02, 0.0), 10.0),  # the forward walk at 20 mm/s
-    # the 225-deg walk: a diagonal gait that heaves and tilts, more sensitive to the step than the walk
-    Case("diagonal walk", "baseline", (-0.0106, -0.0106), 10.0),
+    Case("walk", "baseline", (0.02, 0.0), 20.0, WALK_JUDGED_FROM_S),  # the forward walk at 20 mm/s
+    Case("lateral walk", "baseline", (0.0, 0.015), 20.0, WALK_JUDGED_FROM_S),  # the lateral walk at 15 mm/s
     Case("combined", "combined", (0.015, 0.0), 8.0),  # Table I's combined perturbation, push at 5 s
     Case("standing push", "push_side", (0.0, 0.0), 6.0),  # a 0.4 N s sideways push at 3 s, standing
 )
