@@ -121,7 +121,10 @@ def _cell(value: Any, fmt: str = "", scale: float = 1.0) -> str:
         return "yes" if value else "no"
     if isinstance(value, (int, float)):
         value = value * scale if scale != 1.0 else value
-        return format(value, fmt) if fmt else (f"{value:.4g}" if isinstance(value, float) else str(value))
+        try:
+            return format(value, fmt) if fmt else (f"{value:.4g}" if isinstance(value, float) else str(value))
+        except ValueError:
+            raise UserError(f"a column's format {fmt!r} does not fit {value!r}: fix the page's table spec") from None
     return str(value)
 
 

@@ -109,6 +109,7 @@ def test_a_claims_verdict_follows_its_number(tmp_path: Path) -> None:
         ("name: t\nfile: run/metrics.json", "has no columns"),
         ("file: run/metrics.json\ncolumns: [[a, A]]", "has no name"),
         ("name: t\nruns: [[a, b, c]]\nfile: metrics.json\ncolumns: [[a, A]]", "[label, result dir] pairs"),
+        ("name: t\nfile: run/metrics.json\ncolumns: [[a, A, .2q]]", "format '.2q' does not fit"),
     ],
 )
 def test_a_bad_table_spec_is_one_line_that_names_what_to_fix(tmp_path: Path, spec: str, says: str) -> None:
