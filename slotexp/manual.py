@@ -210,6 +210,8 @@ AGGREGATES = {
 
 def _claims(spec: dict, results: Path, where: str) -> str:
     rows, dirs = [], []
+    if not isinstance(spec["claims"], list) or not all(isinstance(c, dict) for c in spec["claims"]):
+        raise UserError(f"{where}: claims is a list of mappings (claim, paper, file, field, within, why, page)")
     for c in spec["claims"]:
         missing = [k for k in ("claim", "paper", "file", "field", "within", "why", "page") if k not in c]
         if missing:
@@ -230,7 +232,10 @@ def _claims(spec: dict, results: Path, where: str) -> str:
         if not isinstance(value, (int, float)) or isinstance(value, bool):
             raise UserError(f"{where}: claim {c['claim']!r}: {path} field {c['field']!r} is not a number")
         shown = value * float(c.get("scale", 1.0))
-        lo, hi = c["within"]
+        bounds = c["within"]
+        if not (isinstance(bounds, list) and len(bounds) == 2 and all(isinstance(b, (int, float)) for b in bounds)):
+            raise UserError(f"{where}: claim {c['claim']!r}: within is [lo, hi], two numbers, not {bounds!r}")
+        lo, hi = bounds
         verdict = "reproduced" if lo <= shown <= hi else f"differs: {c['why']}"
         ours = _cell(value, fmt, float(c.get("scale", 1.0))) + (f" {c['unit']}" if c.get("unit") else "")
         rows.append([c["claim"], str(c["paper"]), ours, verdict, f"[{c['page']}]({c['page']})"])

@@ -110,6 +110,11 @@ def test_a_claims_verdict_follows_its_number(tmp_path: Path) -> None:
         ("file: run/metrics.json\ncolumns: [[a, A]]", "has no name"),
         ("name: t\nruns: [[a, b, c]]\nfile: metrics.json\ncolumns: [[a, A]]", "[label, result dir] pairs"),
         ("name: t\nfile: run/metrics.json\ncolumns: [[a, A, .2q]]", "format '.2q' does not fit"),
+        (
+            "name: t\nclaims: [{claim: c, paper: p, file: run/metrics.json, field: 0.a, within: 3, why: w, page: p}]",
+            "within is [lo, hi]",
+        ),
+        ("name: t\nclaims: 3", "claims is a list"),
     ],
 )
 def test_a_bad_table_spec_is_one_line_that_names_what_to_fix(tmp_path: Path, spec: str, says: str) -> None:
