@@ -30,8 +30,9 @@ Kinds of block (the spec's keys):
   directory, each column a field of that directory's ``file``.
 - ``claims``: the summary of the paper's claims: per row the claim, the paper's number,
   ours (a field of a file, or with ``key`` that field of each record, counted or its
-  ``aggregate``: ``max``, ``min``), and a verdict that follows from the number (``within``: the
-  range, in the shown units, inside which ours reproduces the paper's; otherwise ``why``).
+  ``aggregate``: ``max``, ``min``, ``maxabs``), and a verdict that follows from the number (``within``: the
+  range, in the shown units, inside which ours reproduces the paper's; otherwise ``why``);
+  ``words`` renames the column and the verdicts (``{column: Target, agrees: met, differs: missed}``).
 
 A column is ``[field, header]``, ``[field, header, format]`` or ``[field, header, format,
 scale]``: ``field`` a dotted path (``gaits.forward.distance``; ``table1.*.settle_s``: that
@@ -205,11 +206,14 @@ AGGREGATES = {
     "count": len,
     "max": lambda v: max(v, default=float("nan")),
     "min": lambda v: min(v, default=float("nan")),
+    "maxabs": lambda v: max((abs(x) for x in v), default=float("nan")),  # the worst of signed errors
 }
 
 
 def _claims(spec: dict, results: Path, where: str) -> str:
     rows, dirs = [], []
+    # the column the claims' numbers stand in and the verdict's words: the paper's claims by default, or targets
+    words = {"column": "Paper", "agrees": "reproduced", "differs": "differs", **(spec.get("words") or {})}
     if not isinstance(spec["claims"], list) or not all(isinstance(c, dict) for c in spec["claims"]):
         raise UserError(f"{where}: claims is a list of mappings (claim, paper, file, field, within, why, page)")
     for c in spec["claims"]:
@@ -236,11 +240,11 @@ def _claims(spec: dict, results: Path, where: str) -> str:
         if not (isinstance(bounds, list) and len(bounds) == 2 and all(isinstance(b, (int, float)) for b in bounds)):
             raise UserError(f"{where}: claim {c['claim']!r}: within is [lo, hi], two numbers, not {bounds!r}")
         lo, hi = bounds
-        verdict = "reproduced" if lo <= shown <= hi else f"differs: {c['why']}"
+        verdict = words["agrees"] if lo <= shown <= hi else f"{words['differs']}: {c['why']}"
         ours = _cell(value, fmt, float(c.get("scale", 1.0))) + (f" {c['unit']}" if c.get("unit") else "")
         rows.append([c["claim"], str(c["paper"]), ours, verdict, f"[{c['page']}]({c['page']})"])
         dirs.append(Path(c["file"]).parts[0])
-    table = _markdown(["Claim", "Paper", "Ours", "Verdict", "Page"], rows)
+    table = _markdown(["Claim", words["column"], "Ours", "Verdict", "Page"], rows)
     return table + f"\n*Ours from `results/` ({', '.join(sorted(set(dirs)))}); made by `make results`.*\n"
 
 

@@ -99,6 +99,15 @@ def test_a_claims_verdict_follows_its_number(tmp_path: Path) -> None:
     assert [r.name for r in manual.check(pages, results)] == ["claims"]
     manual.write(pages, results)
     assert "| path | 35 | 77.0 mm | differs: it slides |" in (pages / "p.md").read_text()
+    # as targets: the column and the verdicts named so
+    (pages / "p.md").write_text(
+        (pages / "p.md")
+        .read_text()
+        .replace("claims:", "words: {column: Target, agrees: met, differs: missed}\nclaims:", 1)
+    )
+    manual.write(pages, results)
+    assert "| Claim | Target | Ours |" in (pages / "p.md").read_text()
+    assert "| path | 35 | 77.0 mm | missed: it slides |" in (pages / "p.md").read_text()
 
 
 @pytest.mark.parametrize(
