@@ -36,9 +36,9 @@ Kinds of block (the spec's keys):
 
 A column is ``[field, header]``, ``[field, header, format]`` or ``[field, header, format,
 scale]``: ``field`` a dotted path (``gaits.forward.distance``; ``table1.*.settle_s``: that
-field of every entry), ``format`` a Python format spec (``.1f``, ``+.1%``) or ``count`` / ``sum``
-(how many entries of a ``*`` field have a value, or their sum), ``scale`` a factor applied first (1000: metres
-to millimetres).
+field of every entry), ``format`` a Python format spec (``.1f``, ``+.1%``) or an aggregate of a
+``*`` field (``count``: how many entries have a value; ``sum``, ``max``, ``min``, ``maxabs``),
+``scale`` a factor applied first (1000: metres to millimetres).
 """
 
 from __future__ import annotations
@@ -110,12 +110,23 @@ def _field(data: Any, path: str, where: str) -> Any:
     return value
 
 
+AGGREGATES = {
+    "count": len,
+    "sum": sum,
+    "max": lambda v: max(v, default=float("nan")),
+    "min": lambda v: min(v, default=float("nan")),
+    "maxabs": lambda v: max((abs(x) for x in v), default=float("nan")),  # the worst of signed errors
+}
+
+
+def _aggregate(values: list, how: str) -> Any:
+    """``how`` (a key of :data:`AGGREGATES`) of the entries of a ``*`` field that have a value (not None or NaN)."""
+    return AGGREGATES[how]([v for v in values if v is not None and v == v])
+
+
 def _cell(value: Any, fmt: str = "", scale: float = 1.0) -> str:
-    if fmt in ("count", "sum"):  # a list field (a path with *): how many of its entries have a value, or their sum
-        if not isinstance(value, list):
-            return "—"
-        kept = [v for v in value if v is not None and v == v]
-        return str(len(kept) if fmt == "count" else sum(kept))
+    if fmt in AGGREGATES:  # a list field (a path with *), aggregated: how many entries have a value, their sum, ...
+        return _cell(_aggregate(value, fmt)) if isinstance(value, list) else "—"
     if value is None or (isinstance(value, float) and value != value):
         return "—"
     if isinstance(value, bool):
@@ -148,9 +159,13 @@ def _markdown(headers: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _made_by(results: Path, dirs: list[str]) -> str:
-    """The command(s) that made these result directories, from make results' timing record."""
-    timing = _load(results / TIMING) if (results / TIMING).is_file() else {}
+def _timing(results: Path) -> dict:
+    """make results' record of each result's command (empty where there is none)."""
+    return _load(results / TIMING) if (results / TIMING).is_file() else {}
+
+
+def _made_by(timing: dict, dirs: list[str]) -> str:
+    """The command(s) that made these result directories, from make results' ``timing`` record."""
     names = list(dict.fromkeys(dirs))
     if len(names) == 1 and names[0] in timing:
         args = " ".join(str(a) for a in timing[names[0]]["args"])
@@ -172,8 +187,9 @@ def _records(data: Any, spec: dict, where: str) -> list[dict]:
     return data
 
 
-def render_table(spec: dict, results: Path, where: str) -> str:
-    """One block's table and its source line, from the result files under ``results``."""
+def render_table(spec: dict, results: Path, where: str, timing: dict) -> str:
+    """One block's table and its source line, from the result files under ``results`` (``timing``: their
+    commands, :func:`_timing`)."""
     if "claims" in spec:
         return _claims(spec, results, where)
     if "file" not in spec:
@@ -199,15 +215,7 @@ def render_table(spec: dict, results: Path, where: str) -> str:
         rows = [[_cell(_field(r, f, str(path)), fmt, s) for f, _, fmt, s in columns] for r in records]
         dirs = [Path(spec["file"]).parts[0]]
         files = f"`results/{spec['file']}`"
-    return _markdown(headers, rows) + f"\n*From {files}; made by {_made_by(results, dirs)}.*\n"
-
-
-AGGREGATES = {
-    "count": len,
-    "max": lambda v: max(v, default=float("nan")),
-    "min": lambda v: min(v, default=float("nan")),
-    "maxabs": lambda v: max((abs(x) for x in v), default=float("nan")),  # the worst of signed errors
-}
+    return _markdown(headers, rows) + f"\n*From {files}; made by {_made_by(timing, dirs)}.*\n"
 
 
 def _claims(spec: dict, results: Path, where: str) -> str:
@@ -227,12 +235,11 @@ def _claims(spec: dict, results: Path, where: str) -> str:
         else:
             value = _field(data, c["field"], str(path))
         fmt = c.get("format", "")
-        if isinstance(value, list):  # a * field: how many entries have a value, or the largest
-            kept = [v for v in value if v is not None and v == v]
+        if isinstance(value, list):  # a * field: how many entries have a value, or the largest, ...
             how = c.get("aggregate", "count")
             if how not in AGGREGATES:
                 raise UserError(f"{where}: claim {c['claim']!r}: aggregate is one of {', '.join(AGGREGATES)}")
-            value = AGGREGATES[how](kept)
+            value = _aggregate(value, how)
         if not isinstance(value, (int, float)) or isinstance(value, bool):
             raise UserError(f"{where}: claim {c['claim']!r}: {path} field {c['field']!r} is not a number")
         shown = value * float(c.get("scale", 1.0))
@@ -251,6 +258,7 @@ def _claims(spec: dict, results: Path, where: str) -> str:
 def render_page(page: Path, results: Path) -> list[Rendered]:
     """Every table block of ``page``, as committed and as its files render it now."""
     text = page.read_text()
+    timing = _timing(results)
     out = []
     for m in BLOCK.finditer(text):
         try:
@@ -260,7 +268,7 @@ def render_page(page: Path, results: Path) -> list[Rendered]:
         if not isinstance(spec, dict) or "name" not in spec:
             raise UserError(f"{page}: a table spec has no name: give each block a name: line")
         where = f"{page}: table {spec['name']!r}"
-        out.append(Rendered(page, str(spec["name"]), m["body"], render_table(spec, results, where)))
+        out.append(Rendered(page, str(spec["name"]), m["body"], render_table(spec, results, where, timing)))
     return out
 
 

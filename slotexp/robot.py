@@ -44,6 +44,16 @@ def leg_root_z(cfg: RobotConfig) -> float:
     return -cfg.torso.size[2] / 2 + cfg.leg.root_above_bottom
 
 
+def leg_roots(cfg: RobotConfig) -> np.ndarray:
+    """Each leg's root (4, 3), m, relative to the torso's mass centre: under the corner its yaw points out of,
+    at the mount's height (:func:`leg_root_z`)."""
+    lx, ly, _ = cfg.torso.size
+    yaw = np.deg2rad(np.asarray(cfg.leg.yaw_deg, dtype=float))
+    z = leg_root_z(cfg)
+    corners = np.column_stack([np.sign(np.cos(yaw)) * lx / 2, np.sign(np.sin(yaw)) * ly / 2, np.full(4, z)])
+    return corners - horizontal(cfg.torso.com_offset)
+
+
 def build_robot(cfg: RobotConfig) -> RobotModel:
     """Torso cuboid plus four legs lumped as point masses at their rest-shape centroids.
 
@@ -55,11 +65,7 @@ def build_robot(cfg: RobotConfig) -> RobotModel:
         return RobotModel(**mass_properties(cfg))
     lx, ly, lz = cfg.torso.size
     yaw = np.deg2rad(np.asarray(cfg.leg.yaw_deg, dtype=float))
-    # Each leg sits under the corner its yaw points out of, at the mount's height (leg_root_z).
-    corners = np.column_stack(
-        [np.sign(np.cos(yaw)) * lx / 2, np.sign(np.sin(yaw)) * ly / 2, np.full(4, leg_root_z(cfg))]
-    )
-    corners = corners - horizontal(cfg.torso.com_offset)  # relative to the torso's own mass centre
+    corners = leg_roots(cfg)  # relative to the torso's own mass centre
     shape = rest_shape_points(cfg.leg.rest_shape_coeffs, cfg.leg.length)
     reach = shape[-1, 0] - shape[0, 0]
     drop = shape[0, 1] - shape[-1, 1]  # root height above the tip

@@ -20,7 +20,7 @@ from ..actuation import tendon_angle_deg
 from ..body import euler_to_quat, horizontal, quat_to_euler, quat_to_rot
 from ..config import PlantConfig, SlotConfig, TorsoConfig, choice_field, num_field
 from ..errors import ConfigError, DivergenceError
-from ..robot import RobotModel, leg_root_z
+from ..robot import RobotModel, leg_root_z, leg_roots
 from ..soft.coupled import (
     Robot,
     Settings,
@@ -127,11 +127,8 @@ class CosseratPlant:
         self.torso_mass = cfg.robot.torso.mass + 4 * m.mass[0]
         self.inertia = self.torso_mass / 12.0 * np.diag([ly**2 + lz**2, lx**2 + lz**2, lx**2 + ly**2])
         self.yaw = np.deg2rad(np.asarray(leg_cfg.yaw_deg, dtype=float))
-        # leg roots under the torso's corners at the mount's height, relative to the torso's mass centre
+        self.corners = leg_roots(cfg.robot)  # relative to the torso's mass centre
         root_z = leg_root_z(cfg.robot)
-        self.corners = np.column_stack(
-            [np.sign(np.cos(self.yaw)) * lx / 2, np.sign(np.sin(self.yaw)) * ly / 2, np.full(4, root_z)]
-        ) - horizontal(cfg.robot.torso.com_offset)
         drop = m.rest_pos[0, 1] - m.rest_pos[-1, 1]
         # The torso starts level, with the resting feet just touching the ground; settling lowers it
         # onto the scenario's offset pose (see _settle_legs).
