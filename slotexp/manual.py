@@ -272,21 +272,24 @@ def render_page(page: Path, results: Path) -> list[Rendered]:
     return out
 
 
-def pages(pages_dir: Path) -> list[Path]:
+def pages(pages_dir: Path, results: Path) -> list[Path]:
+    """The manual's pages, once both directories are there."""
     if not pages_dir.is_dir():
         raise UserError(f"{pages_dir}: no such directory: give the results manual's pages (docs/results)")
+    if not results.is_dir():
+        raise UserError(f"{results}: no such directory: give the result files' directory (results)")
     return sorted(pages_dir.glob("*.md"))
 
 
 def check(pages_dir: Path, results: Path) -> list[Rendered]:
     """The tables whose committed text differs from what their files render now (empty: all agree)."""
-    return [r for page in pages(pages_dir) for r in render_page(page, results) if r.committed != r.rendered]
+    return [r for page in pages(pages_dir, results) for r in render_page(page, results) if r.committed != r.rendered]
 
 
 def write(pages_dir: Path, results: Path) -> list[Path]:
     """Render every page's tables in place; return the pages that changed."""
     changed = []
-    for page in pages(pages_dir):
+    for page in pages(pages_dir, results):
         text = page.read_text()
         rendered = iter(render_page(page, results))
 
