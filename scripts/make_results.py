@@ -628,6 +628,7 @@ def main(names: list[str]) -> None:
         shutil.rmtree(run_dir, ignore_errors=True)
         start = time.perf_counter()
         args = DERIVED[name]() if name in DERIVED else {**RUNS, **SWEEPS, **BENCHES}[name]
+        verb = "slot bench" if name in BENCHES else "slot run -m" if name in SWEEPS else "slot run"
         if name in BENCHES:
             print(f"== {name}: slot bench {' '.join(BENCHES[name])}", flush=True)
             subprocess.run([SLOT, "bench", *BENCHES[name], "--out", str(run_dir)], cwd=ROOT, check=True)
@@ -638,7 +639,7 @@ def main(names: list[str]) -> None:
         else:
             print(f"== {name}: slot run {' '.join(args)}", flush=True)
             subprocess.run([SLOT, "run", *args, f"hydra.run.dir={run_dir}"], cwd=ROOT, check=True)
-        entry = {"wall_s": round(time.perf_counter() - start, 1), "args": args}
+        entry = {"wall_s": round(time.perf_counter() - start, 1), "args": args, "command": verb}
         dest = ROOT / "results" / name
         shutil.rmtree(dest, ignore_errors=True)
         dest.mkdir(parents=True)

@@ -25,7 +25,8 @@ Kinds of block (the spec's keys):
 
 - ``file`` + ``key`` (optional) + ``columns``: one row per record of a JSON/YAML list (or
   mapping, each entry a row named ``name``) or per row of a CSV; ``where`` keeps the rows
-  whose fields equal the given values, ``exclude`` drops them.
+  whose fields equal the given values, ``exclude`` drops them. ``command`` names the command
+  that made the file where ``make results`` did not (a measurement on another machine).
 - ``runs`` (``[label, result dir]`` pairs) + ``file`` + ``columns``: one row per result
   directory, each column a field of that directory's ``file``.
 - ``claims``: the summary of the paper's claims: per row the claim, the paper's number,
@@ -168,8 +169,9 @@ def _made_by(timing: dict, dirs: list[str]) -> str:
     """The command(s) that made these result directories, from make results' ``timing`` record."""
     names = list(dict.fromkeys(dirs))
     if len(names) == 1 and names[0] in timing:
-        args = " ".join(str(a) for a in timing[names[0]]["args"])
-        return f"`slot run {args}` (`python scripts/make_results.py {names[0]}`)"
+        entry = timing[names[0]]
+        command = " ".join([entry.get("command", "slot run"), *(str(a) for a in entry["args"])])
+        return f"`{command}` (`python scripts/make_results.py {names[0]}`)"
     return f"`python scripts/make_results.py {' '.join(names)}`"
 
 
@@ -215,7 +217,8 @@ def render_table(spec: dict, results: Path, where: str, timing: dict) -> str:
         rows = [[_cell(_field(r, f, str(path)), fmt, s) for f, _, fmt, s in columns] for r in records]
         dirs = [Path(spec["file"]).parts[0]]
         files = f"`results/{spec['file']}`"
-    return _markdown(headers, rows) + f"\n*From {files}; made by {_made_by(timing, dirs)}.*\n"
+    made_by = f"`{spec['command']}`" if "command" in spec else _made_by(timing, dirs)
+    return _markdown(headers, rows) + f"\n*From {files}; made by {made_by}.*\n"
 
 
 def _claims(spec: dict, results: Path, where: str) -> str:

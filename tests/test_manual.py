@@ -77,6 +77,29 @@ def test_rendering_fills_a_block_from_its_file_and_a_second_render_changes_nothi
     assert "*From `results/perturb/metrics.json`; made by `slot run experiment=perturb" in page.read_text()
 
 
+def test_the_source_line_names_the_command_each_result_was_made_by(tmp_path: Path) -> None:
+    """A benchmark's line says `slot bench`, a sweep's `slot run -m`; a file made elsewhere names its command."""
+    results = tmp_path / "results"
+    for d in ("bench", "sweep", "node"):
+        (results / d).mkdir(parents=True)
+        (results / d / "rows.json").write_text(json.dumps([{"b": 1}]))
+    (results / manual.TIMING).write_text(
+        json.dumps(
+            {
+                "bench": {"args": ["leg"], "command": "slot bench"},
+                "sweep": {"args": ["gait=walk"], "command": "slot run -m"},
+            }
+        )
+    )
+    specs = {d: {"name": d, "file": f"{d}/rows.json", "columns": [["b", "B"]]} for d in ("bench", "sweep", "node")}
+    specs["node"]["command"] = "python scripts/batch_throughput.py run cfg.pkl"
+    timing = manual._timing(results)
+    lines = {d: manual.render_table(spec, results, d, timing).splitlines()[-1] for d, spec in specs.items()}
+    assert "made by `slot bench leg` (`python scripts/make_results.py bench`)" in lines["bench"]
+    assert "made by `slot run -m gait=walk`" in lines["sweep"]
+    assert lines["node"].endswith("made by `python scripts/batch_throughput.py run cfg.pkl`.*")
+
+
 def _page(tmp_path: Path, spec: str) -> Path:
     pages = tmp_path / "pages"
     pages.mkdir(exist_ok=True)

@@ -17,7 +17,7 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
   median/p99 wall time per 33 ms MPC step, ``ratio_vs_baseline`` = real-time factor.
 - ``batch``: B = 1, 8 and 64 robots stepped together (:class:`CosseratBatch`, one
   thread per robot over every core), each with its own tendon schedule (the
-  forward walk's, each at its own phase), for ``BATCH_S`` simulated seconds at the
+  forward walk's, each at its own phase), for ``batch.BATCH_S`` simulated seconds at the
   configured step; ``ratio_vs_baseline`` = robot-seconds simulated per wall second,
   and B robots stepped one after another in one thread in ``extra``.
 - ``accuracy``: the closed-loop cases of :mod:`._accuracy` (walk, Table I's combined,
@@ -37,22 +37,19 @@ import math
 import time
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from .. import telemetry as T
 from ..config import SlotConfig
 from ..errors import DivergenceError
-from ..plants import TendonCommand
 from ..robot import leg_root_z
 from ..soft.integrators import LegSim, stable_dt
 from ..soft.statics import clamped_leg, set_tendon
 from . import BenchRow, register
 from ._accuracy import CASES, compare, real_time_factor, run_case, with_plant, within
+from .batch import batch_throughput
 
 TRANSIENT_S = 0.2
-BATCH_SIZES = (1, 8, 64)
-BATCH_S = 2.0  # s simulated per robot
 LARGE_STEPS = (1e-2, 1.0 / 30.0)  # s: the loaded leg at the 1/30 s control period, and at 10 ms
 LARGE_STEP_NEWTON = 8
 REFERENCE_DT = 2.5e-5  # s, implicit with a fresh Jacobian every step: the converged closed-loop reference
@@ -298,54 +295,19 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
 
 def _batch_rows(cfg: SlotConfig) -> list[BenchRow]:
     """Robot-seconds per wall second for B robots in one batch, and B robots one after another."""
-    from ..locomotion.primitives import GaitStyle, Primitive, mix
-    from ..plants import nominal_state
-    from ..plants.cosserat import CosseratBatch, CosseratPlant
-    from ..robot import build_robot
-
-    robot = build_robot(cfg.robot)
-    style_cfg = cfg.controller.library[cfg.gait.style]
-    style = GaitStyle(style_cfg.frequency_hz, style_cfg.duty, style_cfg.sharpness)
-    walk = max((Primitive.from_config(p) for p in style_cfg.primitives), key=lambda p: p.speed_mps)
-    top = cfg.robot.leg.tendon_max_deg
-    period = 1.0 / cfg.mpc.rate_hz
-    steps = int(round(BATCH_S / period))
-
-    def schedules(n: int, k: int) -> np.ndarray:  # (n, 4): robot b runs the gait shifted by b / n of a cycle
-        return np.array([mix(style, [(1.0, walk)], k * period * style.frequency_hz + b / n, top) for b in range(n)])
-
-    def plants(n: int) -> list[CosseratPlant]:
-        return [CosseratPlant(cfg, robot, nominal_state(robot)) for _ in range(n)]
-
-    CosseratBatch(plants(2)).step(schedules(2, 0), period)  # compile or load the batch kernel first
-    rows = []
-    for n in BATCH_SIZES:
-        batch = CosseratBatch(plants(n))
-        per_step = np.empty(steps)
-        for k in range(steps):
-            start = time.perf_counter()
-            batch.step(schedules(n, k), period)
-            per_step[k] = time.perf_counter() - start
-        alone = plants(min(n, 8))  # one after another, one thread (at most 8: it scales linearly)
-        start = time.perf_counter()
-        for k in range(steps):
-            for plant, command in zip(alone, schedules(len(alone), k)):
-                plant.step(TendonCommand(command), period)
-        alone_rate = len(alone) * BATCH_S / (time.perf_counter() - start)
-        rate = n * BATCH_S / per_step.sum()
-        rows.append(
-            BenchRow(
-                "batch",
-                f"B={n} robots, {cfg.plant.integrator} dt={cfg.sim.dt:.3g} age {cfg.plant.jacobian_age}",
-                float(np.median(per_step)) * 1e6,
-                float(np.quantile(per_step, 0.99)) * 1e6,
-                rate,
-                {
-                    "robot_seconds_per_wall_second": rate,
-                    "one_after_another_robot_seconds_per_wall_second": alone_rate,
-                    "threads": numba.get_num_threads(),
-                    "simulated_s_per_robot": BATCH_S,
-                },
-            )
+    return [
+        BenchRow(
+            "batch",
+            f"B={r.robots} robots, {cfg.plant.integrator} dt={cfg.sim.dt:.3g} age {cfg.plant.jacobian_age}",
+            float(np.median(r.step_wall_s)) * 1e6,
+            float(np.quantile(r.step_wall_s, 0.99)) * 1e6,
+            r.robot_seconds_per_wall_second,
+            {
+                "robot_seconds_per_wall_second": r.robot_seconds_per_wall_second,
+                "one_after_another_robot_seconds_per_wall_second": r.one_after_another_robot_seconds_per_wall_second,
+                "threads": r.threads,
+                "simulated_s_per_robot": r.simulated_s_per_robot,
+            },
         )
-    return rows
+        for r in batch_throughput(cfg)
+    ]
