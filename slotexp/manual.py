@@ -37,8 +37,9 @@ Kinds of block (the spec's keys):
 
 A column is ``[field, header]``, ``[field, header, format]`` or ``[field, header, format,
 scale]``: ``field`` a dotted path (``gaits.forward.distance``; ``table1.*.settle_s``: that
-field of every entry), ``format`` a Python format spec (``.1f``, ``+.1%``) or an aggregate of a
-``*`` field (``count``: how many entries have a value; ``sum``, ``max``, ``min``, ``maxabs``),
+field of every entry of a list or mapping), ``format`` a Python format spec (``.1f``, ``+.1%``) or an aggregate of a
+``*`` field (``count``: how many entries have a value; ``sum``, ``max``, ``min``, ``maxabs``; ``maxabs:.0f``
+formats the aggregate),
 ``scale`` a factor applied first (1000: metres to millimetres).
 """
 
@@ -99,9 +100,10 @@ def _field(data: Any, path: str, where: str) -> Any:
     value = data
     parts = str(path).split(".")
     for i, part in enumerate(parts):
-        if part == "*" and isinstance(value, list):  # every entry's rest of the path: a list
+        if part == "*" and isinstance(value, (list, dict)):  # every entry's rest of the path: a list
             rest = ".".join(parts[i + 1 :])
-            return [_field(v, rest, where) if rest else v for v in value]
+            entries = value.values() if isinstance(value, dict) else value
+            return [_field(v, rest, where) if rest else v for v in entries]
         if isinstance(value, dict) and part in value:
             value = value[part]
         elif isinstance(value, list) and part.lstrip("-").isdigit() and -len(value) <= int(part) < len(value):
@@ -126,8 +128,9 @@ def _aggregate(values: list, how: str) -> Any:
 
 
 def _cell(value: Any, fmt: str = "", scale: float = 1.0) -> str:
-    if fmt in AGGREGATES:  # a list field (a path with *), aggregated: how many entries have a value, their sum, ...
-        return _cell(_aggregate(value, fmt)) if isinstance(value, list) else "—"
+    how, _, then = fmt.partition(":")
+    if how in AGGREGATES:  # a list field (a path with *), aggregated: how many entries have a value, their sum, ...
+        return _cell(_aggregate(value, how), then) if isinstance(value, list) else "—"
     if value is None or (isinstance(value, float) and value != value):
         return "—"
     if isinstance(value, bool):

@@ -100,6 +100,19 @@ def test_the_source_line_names_the_command_each_result_was_made_by(tmp_path: Pat
     assert lines["node"].endswith("made by `python scripts/batch_throughput.py run cfg.pkl`.*")
 
 
+def test_a_star_field_aggregates_the_entries_of_a_mapping_and_can_be_formatted(tmp_path: Path) -> None:
+    """``*.heading_error_deg`` over a replay's gaits (a mapping): the worst signed error, formatted."""
+    results = tmp_path / "results"
+    (results / "replay").mkdir(parents=True)
+    gaits = {"forward": {"heading_error_deg": -0.4}, "backward": {"heading_error_deg": -21.56}, "turn": {}}
+    gaits["turn"]["heading_error_deg"] = None
+    (results / "replay" / "metrics.json").write_text(json.dumps(gaits))
+    spec = {"name": "t", "runs": [["default", "replay"]], "file": "metrics.json"}
+    spec["columns"] = [["*.heading_error_deg", "Worst", "maxabs:.0f"], ["*.heading_error_deg", "Raw", "maxabs"]]
+    table = manual.render_table(spec, results, "t", {})
+    assert "| default | 22 | 21.56 |" in table
+
+
 def _page(tmp_path: Path, spec: str) -> Path:
     pages = tmp_path / "pages"
     pages.mkdir(exist_ok=True)
