@@ -135,6 +135,8 @@ def _cell(value: Any, fmt: str = "", scale: float = 1.0) -> str:
         return "—"
     if isinstance(value, bool):
         return "yes" if value else "no"
+    if isinstance(value, list):  # a list of names (a fit's variables): one cell
+        return ", ".join(_cell(v) for v in value)
     if isinstance(value, (int, float)):
         value = value * scale if scale != 1.0 else value
         try:
