@@ -18,7 +18,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SLOT = str(Path(sys.executable).parent / "slot")
 KEEP = ("*.csv", "*.md", "*.png", "*.gif", "*.json", "actuation_calibrated.yaml", "library.yaml", "fit.yaml")
-# Commanded speeds (m/s) on the soft legs, inside the gait library's envelope (results/README.md says why).
+# Commanded speeds (m/s) on the soft legs, inside the gait library's envelope (docs/results/walking.md says why).
 WALK = 0.02
 WALK_FAST = 0.028
 CRAWL = 0.006
@@ -26,7 +26,7 @@ OMNI = 0.015
 LATERAL = 0.015
 TABLE1 = 0.02  # the walk's own command (at 15 mm/s the partial stroke yaws more than the lean can hold)
 TABLE1_SLOW = 0.015  # the speed Table I walked at before the heading loop, kept for comparison
-WALK_40 = 0.04  # half the paper's 80 mm/s: beyond the library's envelope (results/README.md says why)
+WALK_40 = 0.04  # half the paper's 80 mm/s: beyond the library's envelope (docs/results/walking.md says why)
 HEADING_SPEED = 0.015
 # The soft model's uncertain settings experiment=identify fits: the floor's friction, the horn zero, E, damping
 FITTED = (
@@ -42,7 +42,7 @@ FITTED_WIDE = (
     "{path: robot.leg.youngs_modulus, lo: 4.0e6, hi: 4.0e7, log: true},"
     "{path: robot.leg.damping_per_s, lo: 2.0, hi: 80.0, log: true}]"
 )
-# ... and the tendon's geometry, with ranges from the robot's files (results/README.md, "The tendon's geometry"):
+# ... and the tendon's geometry, with ranges from the robot's files (docs/results/gaits.md):
 # the pulley's radius from the CAD's 18 mm circle (9 mm) to the newer model's 1.4 N m over 114 N (12.3 mm); the
 # cable along the leg from its underside at the root (6.75 mm) to 12 mm below the centreline, or a bowstring's
 # guide from the leg's underside at the root (7 mm below) to 20 mm below
@@ -280,7 +280,7 @@ RUNS = {
         "experiment.search=false",
     ],
     # Faster walking: the forward gait searched at other clocks and duty factors, and from the robot's own
-    # forward gait (its reach-and-pull steps shaped as a primitive); none is installed (results/README.md)
+    # forward gait (its reach-and-pull steps shaped as a primitive); none is installed (docs/results/walking.md)
     **{
         f"speed_search_{tag}": [
             "experiment=gait_search",
@@ -340,7 +340,7 @@ RUNS = {
         }.items()
     },
     # The physical robot's own gaits (shared/data) replayed on the soft plant, beside the robot; and the same
-    # replays with a model option each (a first look, nothing fitted; results/README.md, "The robot's own gaits").
+    # replays with a model option each (a first look, nothing fitted; docs/results/gaits.md).
     "replay": ["experiment=replay", "plant=cosserat"],
     "replay_mu0.6": ["experiment=replay", "plant=cosserat", "robot.contact.friction=0.6", "experiment.gif=false"],
     "replay_belly": ["experiment=replay", "plant=cosserat", "robot.torso.ground_contact=true", "experiment.gif=false"],
@@ -352,7 +352,7 @@ RUNS = {
         "experiment.gif=false",
     ],
     # Model options one at a time on the default model (replay: on against off), each for its physical reason
-    # (results/README.md, "The robot's own gaits"): the horn zero at eq. 11's standing angle, a stiffer leg (E),
+    # (docs/results/gaits.md): the horn zero at eq. 11's standing angle, a stiffer leg (E),
     # a stiffer tendon, the authors' newer leg length, a lighter torso, its mass centre 15 mm back, a straight leg,
     # static friction, the leg's root as the authors' newer model mounts it (its underside flush with the torso's).
     **{
@@ -423,7 +423,7 @@ RUNS = {
         "experiment.slice_points=0",
     ],
     # ... with the torso held to the paper's walking height (p_z* = 0.04 m, sigma 10 mm): the unconstrained fit
-    # matches the distances standing 2.2x taller (results/README.md)
+    # matches the distances standing 2.2x taller (docs/results/gaits.md)
     "identify_robot_height40": [
         "experiment=identify",
         "plant=cosserat",
@@ -498,7 +498,7 @@ RUNS = {
 
 def mean_walk_command() -> list[str]:
     """The fairer open-loop baseline: the gait at the closed-loop walk's own mean velocity command (after 2 s),
-    read from that run's log (results/README.md, "The controller does the work")."""
+    read from that run's log (docs/results/walking.md)."""
     from slotexp.record import read_log
 
     log = read_log(ROOT / "experiments" / "results" / "simulate_cosserat_walk" / "logs" / "walk.mcap")

@@ -275,7 +275,7 @@ class GaitConfig:
     phases: list[list[int]] = field(default_factory=lambda: [[15, 1, 0, 1, 0], [15, 0, 1, 0, 1]])
     velocity: list[float] = vec_field([0.08, 0.0], length=2, lo=-1.0, hi=1.0, unit="m/s")
     # the soft legs' default reference (plant=cosserat sets velocity to it): the paper's speeds are beyond the
-    # legs' reach, so each gait names one inside the gait library's envelope (results/README.md, "Walking")
+    # legs' reach, so each gait names one inside the gait library's envelope (docs/results/walking.md)
     soft_velocity: list[float] = vec_field([0.015, 0.0], length=2, lo=-1.0, hi=1.0, unit="m/s")
     yaw_rate: float = num_field(0.0, lo=-2.0, hi=2.0, unit="rad/s")
     height: float = num_field(0.04, lo=0.0, lo_open=True, hi=0.5, unit="m")

@@ -1,4 +1,4 @@
-"""Metric definitions shared by every experiment (see results/README.md).
+"""Metric definitions shared by every experiment (see docs/results/index.md, "Definitions").
 
 stage cost  J(t) = 1000 * e^T Q e, e = x(t) - x_ref(t), Q the MPC's Q (so the
             factor 1000 undoes the paper's 1/1000 and J uses the paper's listed

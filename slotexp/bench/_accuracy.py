@@ -41,7 +41,7 @@ TOLERANCE = {"speed_error_fraction": 0.02, "max_dz_mm": 2.0, "max_dxy_mm": 3.0, 
 # The start-up (the robot set down from its nominal pose, its first strides) is not step-converged even at the
 # reference's step: measured against the reference's half step (1.25e-5 s), the walk's torso dips up to 22 mm
 # differently before 2 s and 2 mm after 3 s, the standing robot's 8 mm and 1 mm, Table I's combined offsets more
-# (results/README.md, "Closed-loop accuracy"). So every case is judged from here on, gait speed included.
+# (docs/results/plant.md). So every case is judged from here on, gait speed included.
 START_UP_S = 3.0
 
 
@@ -62,7 +62,7 @@ class Case:
 
 # The walks run 20 s and are judged from 8 s: the path loop (controller.path_kp, path_ki) carries the start-up's
 # differences forward through its position error and integral, so over 3-10 s even the reference's half step was
-# 2.9 % off in speed and 2.2 deg in attitude, and from 8 s of a 20 s run 0.0 % and 1.05 deg (results/README.md).
+# 2.9 % off in speed and 2.2 deg in attitude, and from 8 s of a 20 s run 0.0 % and 1.05 deg (docs/results/plant.md).
 # The diagonal walks converge at no step (their stick-slip pattern is chosen by the step: the 225-deg walk's half
 # step 39-58 % faster than the reference), so the second walk is the lateral one, which converges.
 WALK_JUDGED_FROM_S = 8.0

@@ -132,7 +132,7 @@ class IdentifyExperiment:
     popsize: int = num_field(8, lo=2, hi=1000, unit="")
     sigma0: float = num_field(0.25, lo=0.0, lo_open=True, hi=1.0, unit="of each range")
     # Latin-hypercube points over the ranges evaluated first; the search starts from the best of them and the
-    # config's own values (a fit from the config alone can settle in a local minimum: results/README.md)
+    # config's own values (a fit from the config alone can settle in a local minimum: docs/results/gaits.md)
     initial_design: int = num_field(16, lo=0, hi=10000, unit="candidates")
     # after the search: each parameter scanned over its range at this many points, the others at the best
     slice_points: int = num_field(8, lo=0, hi=1000, unit="candidates per parameter")

@@ -43,7 +43,7 @@ VISIBLE = ["forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_f
 
 @dataclass
 class ReplayExperiment:
-    """Play schedules open loop on the soft plant and compare with the robot (results/README.md)."""
+    """Play schedules open loop on the soft plant and compare with the robot (docs/results/gaits.md)."""
 
     name: str = "replay"
     schedules: list[str] = field(default_factory=lambda: list(VISIBLE))

@@ -50,7 +50,7 @@ def lateral_drift(xy: np.ndarray, direction: np.ndarray, distance: float) -> tup
 def metrics(
     run: RunData, velocity: list[float], drift_distance: float, measure_from_s: float = 2.0, yaw_rate: float = 0.0
 ) -> dict:
-    """Tracking metrics (results/README.md, "Definitions"). Speed, heading and the speed error are
+    """Tracking metrics (docs/results/index.md, "Definitions"). Speed, heading and the speed error are
     the mean over t >= ``measure_from_s`` (net displacement over time); the commanded direction is
     the reference's at the start (the world frame, the robot starting at zero yaw)."""
     xy, xy_ref = run.x[:, 3:5], run.x_ref[:, 3:5]
