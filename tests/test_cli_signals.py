@@ -294,23 +294,17 @@ def _cmdline(pid: int) -> str:
         return ""
 
 
+def _spawn_sweep(sweep: Path, gaits: str) -> subprocess.Popen:
+    """A long two-at-a-time sweep of simulate over ``gaits`` (comma-separated), writing into ``sweep``."""
+    args = ["run", "-m", "experiment=simulate", f"gait={gaits}", "experiment.duration=600", "hydra.launcher.n_jobs=2"]
+    return _spawn([*SLOT_CMD, *args, f"hydra.sweep.dir={sweep}"], sweep.parent)
+
+
 def test_a_stop_signal_to_a_sweeps_parent_closes_every_running_jobs_log_and_starts_no_other(tmp_path: Path) -> None:
     # slot run -m: the joblib launcher ends its workers with SIGKILL when the parent stops; the parent first
     # passes the signal on and waits for each job to close its log (slotexp/signals.py)
     sweep = tmp_path / "sweep"
-    proc = _spawn(
-        [
-            *SLOT_CMD,
-            "run",
-            "-m",
-            "experiment=simulate",
-            "gait=walk,crawl,omni60",
-            "experiment.duration=600",
-            "hydra.launcher.n_jobs=2",
-            f"hydra.sweep.dir={sweep}",
-        ],
-        tmp_path,
-    )
+    proc = _spawn_sweep(sweep, "walk,crawl,omni60")
     logs: list[Path] = []
     deadline = time.monotonic() + 120  # until the two running jobs have opened their logs
     while time.monotonic() < deadline and len(logs) < 2:
@@ -324,19 +318,7 @@ def test_a_sweeps_jobs_end_when_its_parent_is_killed(tmp_path: Path) -> None:
     # SIGKILL leaves the parent no handler to pass anything on: the kernel tells each job (prctl's parent-death
     # signal, SIGTERM), which stops at its next MPC step with its log closed
     sweep = tmp_path / "sweep"
-    proc = _spawn(
-        [
-            *SLOT_CMD,
-            "run",
-            "-m",
-            "experiment=simulate",
-            "gait=walk,crawl",
-            "experiment.duration=600",
-            "hydra.launcher.n_jobs=2",
-            f"hydra.sweep.dir={sweep}",
-        ],
-        tmp_path,
-    )
+    proc = _spawn_sweep(sweep, "walk,crawl")
     try:
         deadline = time.monotonic() + 180  # until both jobs are logging (a clean checkout compiles first)
         logs: list[Path] = []
