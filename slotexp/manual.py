@@ -84,6 +84,9 @@ def _load(path: Path) -> Any:
 
 
 def _number(text: str) -> Any:
+    """A CSV cell as the number or truth value it spells (pandas writes booleans as True/False), else as text."""
+    if text in ("True", "False"):
+        return text == "True"
     try:
         return int(text)
     except ValueError:

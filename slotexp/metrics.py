@@ -71,3 +71,18 @@ def settle_time(t: np.ndarray, cost: np.ndarray, fraction: float, hold: float = 
 def rmse(a: np.ndarray, b: np.ndarray) -> float:
     d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
     return float(np.sqrt(np.nanmean(d**2)))
+
+
+def lateral_drift(xy: np.ndarray, direction: np.ndarray, distance: float) -> tuple[float, float]:
+    """Largest deviation across the direction of travel within the first ``distance`` m along it.
+
+    Returns (drift, along-track distance actually covered, capped at ``distance``).
+    """
+    d = direction / np.linalg.norm(direction)
+    n = np.array([-d[1], d[0]])
+    rel = xy - xy[0]
+    along = rel @ d
+    covered = np.maximum.accumulate(along)
+    mask = covered <= distance
+    mask[0] = True
+    return float(np.max(np.abs(rel[mask] @ n))), float(min(covered[-1], distance))

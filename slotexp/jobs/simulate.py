@@ -10,7 +10,7 @@ import numpy as np
 
 from ..atomic import write_json
 from ..config import SlotConfig, check_run_length, check_scenario, num_field
-from ..metrics import rmse
+from ..metrics import lateral_drift, rmse
 from ..runlog import RunData, find_logs, load_run
 from . import EXPERIMENTS, Experiment
 from ._logged import git_commit, run_logged
@@ -30,21 +30,6 @@ class SimulateExperiment:
     def check(self, cfg: SlotConfig) -> None:
         check_run_length(cfg, self.duration)
         check_scenario(cfg, self.scenario, "experiment.scenario names")
-
-
-def lateral_drift(xy: np.ndarray, direction: np.ndarray, distance: float) -> tuple[float, float]:
-    """Largest deviation across the direction of travel within the first ``distance`` m along it.
-
-    Returns (drift, along-track distance actually covered, capped at ``distance``).
-    """
-    d = direction / np.linalg.norm(direction)
-    n = np.array([-d[1], d[0]])
-    rel = xy - xy[0]
-    along = rel @ d
-    covered = np.maximum.accumulate(along)
-    mask = covered <= distance
-    mask[0] = True
-    return float(np.max(np.abs(rel[mask] @ n))), float(min(covered[-1], distance))
 
 
 def metrics(

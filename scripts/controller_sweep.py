@@ -1,0 +1,245 @@
+"""Does any setting of the heading loop hold the closed-loop targets on every model? A sweep.
+
+The closed-loop issue asks for one set of controller settings that holds on models across the
+ranges identification reported. This script samples the heading loop's settings (gains, the lean's
+reach, the attitude trim, the averaging) and runs the soft closed loop's walk, lateral walk and
+omni60 on each model, scoring the issue's targets. Two models are held out: their columns are
+written but never used to rank a setting (``summarize`` ranks by the others alone).
+
+It needs only the numerical core, DAQP and PyYAML, so a many-core node without the project's CLI
+environment can run it from the package's source (it ran on a lent 16-core node: 357 runs, 307 s):
+
+    python scripts/controller_sweep.py save DIR               # here: the models and the settings
+    python scripts/controller_sweep.py run DIR --deadline 370  # there (or here): DIR/sweep.jsonl
+    python scripts/controller_sweep.py summarize DIR           # here: DIR/summary.csv, DIR/per_model.csv
+
+Each run is one process (``spawn``) with one thread; every kernel is compiled once before the
+workers start, so they load it from numba's cache. Runs are written as they end, so a run stopped at
+its deadline leaves every finished one readable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import pickle
+import random
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+# The models: make_results' four robustness models, the default, and two held out (never used to rank).
+MODELS = {
+    "default": [],
+    "mu0.4": ["robot.contact.friction=0.4"],
+    "mu0.2_E1.4e7_d10": ["robot.contact.friction=0.2", "robot.leg.youngs_modulus=1.4e7", "robot.leg.damping_per_s=10"],
+    "E2e7_d5": ["robot.leg.youngs_modulus=2e7", "robot.leg.damping_per_s=5"],
+    "mu0.8_E7e6_d50": ["robot.contact.friction=0.8", "robot.leg.youngs_modulus=7e6", "robot.leg.damping_per_s=50"],
+    "HELDOUT_mu0.15_E1.2e7_d30": [
+        "robot.contact.friction=0.15",
+        "robot.leg.youngs_modulus=1.2e7",
+        "robot.leg.damping_per_s=30",
+    ],
+    "HELDOUT_mu0.6_E9e6_d20": [
+        "robot.contact.friction=0.6",
+        "robot.leg.youngs_modulus=9e6",
+        "robot.leg.damping_per_s=20",
+    ],
+}
+HELD_OUT = "HELDOUT_"
+# The issue's cases (velocity m/s, duration s) and targets: walks yaw <= 2 deg, drift <= 10 mm per 0.8 m, speed
+# within 5 %; omni60 yaw <= 3 deg, path RMSE <= 35 mm, speed within 10 %.
+CASES = {"walk": ((0.02, 0.0), 30.0), "lateral": ((0.0, 0.015), 30.0), "omni60": ((0.0075, 0.0129904), 45.0)}
+SETTINGS_BOX = {  # the heading loop's settings: sampled log-uniformly, uniformly or from two; decimals kept
+    "heading_kp": ("log", 4.0, 30.0, 2),
+    "heading_ki": ("log", 0.25, 4.0, 3),
+    "max_lean_deg": ("uniform", 10.0, 30.0, 1),
+    "attitude_trim": ("log", 0.03, 0.3, 3),
+    "heading_cycles": ("choice", 1, 2, 0),
+}
+_MODELS: dict | None = None
+
+
+def save(out: Path, n: int, seed: int) -> None:
+    """The models' configs (pickled, without their experiment) and the default plus ``n`` sampled settings."""
+    from slotexp.cli import compose_config
+
+    out.mkdir(parents=True, exist_ok=True)
+    cfgs = {k: dataclasses.replace(compose_config(["plant=cosserat", *v]), experiment=None) for k, v in MODELS.items()}
+    (out / "models.pkl").write_bytes(pickle.dumps(cfgs))
+    c = cfgs["default"].controller
+    settings = [{k: getattr(c, k) for k in SETTINGS_BOX}]
+    rng = random.Random(seed)
+    for _ in range(n):
+        s = {}
+        for k, (kind, a, b, decimals) in SETTINGS_BOX.items():
+            if kind == "log":
+                s[k] = round(math.exp(rng.uniform(math.log(a), math.log(b))), decimals)
+            elif kind == "uniform":
+                s[k] = round(rng.uniform(a, b), decimals)
+            else:
+                s[k] = rng.choice([a, b])
+        settings.append(s)
+    (out / "settings.json").write_text(json.dumps(settings, indent=1) + "\n")
+    print(f"wrote {out}/models.pkl ({len(cfgs)} models) and settings.json ({len(settings)} settings, seed {seed})")
+
+
+def metrics(t, x, velocity) -> dict:
+    """The issue's measures of one run, as `experiment=simulate` defines them (from 2 s; the path against the
+    reference velocity integrated from the start)."""
+    import numpy as np
+
+    from slotexp.metrics import lateral_drift
+
+    xy, v = x[:, 3:5], np.asarray(velocity)
+    d = v / np.linalg.norm(v)
+    drift, covered = lateral_drift(xy, v, 0.8)
+    s = int(np.searchsorted(t, t[0] + 2.0))
+    mean_v = (xy[-1] - xy[s]) / (t[-1] - t[s])
+    ref = xy[0] + np.outer(t - t[0], v)
+    return {
+        "speed_error": float((mean_v @ d - np.linalg.norm(v)) / np.linalg.norm(v)),
+        "yaw_drift_deg": float(np.degrees(x[-1, 2])),
+        "drift_per_08m_mm": 800.0 * drift / covered if covered > 0 else float("nan"),
+        "path_rmse_mm": 1000.0 * float(np.sqrt(np.mean(np.sum((xy - ref) ** 2, axis=1)))),
+        "roll_max_deg": float(np.degrees(np.max(np.abs(x[:, 0])))),
+    }
+
+
+def _task(args: tuple) -> dict:
+    """One closed-loop run: a setting on a model in a case."""
+    global _MODELS
+    directory, index, setting, model, case = args
+    from slotexp.bench._accuracy import Case, run_case
+
+    if _MODELS is None:
+        _MODELS = pickle.loads((Path(directory) / "models.pkl").read_bytes())
+    cfg = _MODELS[model]
+    cfg = dataclasses.replace(cfg, controller=dataclasses.replace(cfg.controller, **setting))
+    velocity, duration = CASES[case]
+    start = time.perf_counter()
+    try:
+        trace = run_case(cfg, Case(case, "baseline", velocity, duration, 0.0))
+        out = metrics(trace.t, trace.x, velocity)
+    except Exception as e:  # a run that fails is a result too
+        out = {"error": f"{type(e).__name__}: {e}"}
+    return {"setting": index, **setting, "model": model, "case": case, "wall_s": time.perf_counter() - start, **out}
+
+
+def run(directory: Path, deadline: float, workers: int) -> None:
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+        os.environ.setdefault(k, "1")
+    start = time.perf_counter()
+    settings = json.loads((directory / "settings.json").read_text())
+    models = list(pickle.loads((directory / "models.pkl").read_bytes()))
+    _task((str(directory), 0, settings[0], models[0], "walk"))  # compile or load every kernel once, here
+    print(f"kernels ready in {time.perf_counter() - start:.0f} s", flush=True)
+    tasks = iter([(str(directory), i, s, m, c) for i, s in enumerate(settings) for m in models for c in CASES])
+    total = len(settings) * len(models) * len(CASES)
+    done = 0
+    with (
+        ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool,
+        (directory / "sweep.jsonl").open("w") as f,
+    ):
+        pending = {pool.submit(_task, t) for t in [next(tasks, None) for _ in range(workers)] if t is not None}
+        while pending:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in finished:
+                f.write(json.dumps(future.result()) + "\n")
+                f.flush()
+                done += 1
+                following = next(tasks, None) if time.perf_counter() - start < deadline else None
+                if following is not None:
+                    pending.add(pool.submit(_task, following))
+    print(f"{done} of {total} runs in {time.perf_counter() - start:.0f} s", flush=True)
+
+
+def checks(row: dict) -> dict[str, bool]:
+    """The issue's targets for one run."""
+    if "error" in row:
+        return {"yaw": False, "drift" if row["case"] != "omni60" else "path": False, "speed": False}
+    if row["case"] == "omni60":
+        return {
+            "yaw": abs(row["yaw_drift_deg"]) <= 3.0,
+            "path": row["path_rmse_mm"] <= 35.0,
+            "speed": abs(row["speed_error"]) <= 0.10,
+        }
+    return {
+        "yaw": abs(row["yaw_drift_deg"]) <= 2.0,
+        "drift": row["drift_per_08m_mm"] <= 10.0,
+        "speed": abs(row["speed_error"]) <= 0.05,
+    }
+
+
+def summarize(directory: Path) -> None:
+    """summary.csv: per setting, the targets met on the models that rank (and, apart, on the held-out ones);
+    per_model.csv: per model, case and target, how many settings meet it, and the default's value."""
+    import pandas as pd
+
+    rows = [json.loads(line) for line in (directory / "sweep.jsonl").read_text().splitlines() if line.strip()]
+    marks = pd.DataFrame(
+        [
+            {"setting": r["setting"], "model": r["model"], "case": r["case"], "target": k, "met": v}
+            for r in rows
+            for k, v in checks(r).items()
+        ]
+    )
+    held = marks.model.str.startswith(HELD_OUT)
+    by_setting = pd.DataFrame(
+        {
+            "met": marks[~held].groupby("setting").met.sum(),
+            "of": marks[~held].groupby("setting").met.size(),
+            "yaw_met": marks[~held & (marks.target == "yaw")].groupby("setting").met.sum(),
+            "held_out_met": marks[held].groupby("setting").met.sum(),
+            "held_out_of": marks[held].groupby("setting").met.size(),
+        }
+    )
+    settings = pd.DataFrame(rows).groupby("setting")[list(SETTINGS_BOX)].first()
+    summary = by_setting.join(settings).reset_index().sort_values(["met", "yaw_met"], ascending=False)
+    summary["default"] = summary.setting == 0
+    summary.to_csv(directory / "summary.csv", index=False)
+    per_model = marks.groupby(["model", "case", "target"]).met.agg(settings_met="sum", settings="size").reset_index()
+    per_model["default_met"] = [
+        bool(marks[(marks.setting == 0) & (marks.model == m) & (marks.case == c) & (marks.target == t)].met.iloc[0])
+        for m, c, t in zip(per_model.model, per_model.case, per_model.target)
+    ]
+    per_model["held_out"] = per_model.model.str.startswith(HELD_OUT)
+    per_model["every_setting_met"] = per_model.settings_met == per_model.settings
+    per_model.to_csv(directory / "per_model.csv", index=False)
+    best, default = summary.iloc[0], summary[summary.default].iloc[0]
+    print(f"{len(rows)} runs; best setting {best.setting}: {best.met} of {best.of} met (the default {default.met})")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="verb", required=True)
+    s = sub.add_parser("save", help="write DIR/models.pkl and DIR/settings.json")
+    s.add_argument("directory", type=Path)
+    s.add_argument("--settings", type=int, default=16, help="settings sampled besides the default")
+    s.add_argument("--seed", type=int, default=36)
+    r = sub.add_parser("run", help="run every setting on every model and case into DIR/sweep.jsonl")
+    r.add_argument("directory", type=Path)
+    r.add_argument("--deadline", type=float, default=math.inf, help="s after which no new run starts")
+    r.add_argument("--workers", type=int, default=os.cpu_count())
+    m = sub.add_parser("summarize", help="write DIR/summary.csv and DIR/per_model.csv")
+    m.add_argument("directory", type=Path)
+    args = parser.parse_args()
+    if args.verb == "save":
+        save(args.directory, args.settings, args.seed)
+    elif args.verb == "run":
+        run(args.directory, args.deadline, args.workers)
+    else:
+        summarize(args.directory)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,39 @@
+"""The controller sweep's measures and targets (scripts/controller_sweep.py) on tracks with known answers."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+SCRIPT = Path(__file__).parents[1] / "scripts" / "controller_sweep.py"
+spec = importlib.util.spec_from_file_location("controller_sweep", SCRIPT)
+sweep = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(sweep)
+
+
+def _track(velocity: tuple[float, float], scale: float, sway: float, yaw_end: float) -> tuple[np.ndarray, np.ndarray]:
+    """A torso that goes ``scale`` times the commanded velocity, swaying ``sway`` m across it, yawing to ``yaw_end``."""
+    t = np.linspace(0.0, 40.0, 1201)
+    v = np.asarray(velocity)
+    d = v / np.linalg.norm(v)
+    x = np.zeros((t.size, 12))
+    x[:, 3:5] = np.outer(scale * t, v) + np.outer(sway * np.sin(t), [-d[1], d[0]])
+    x[:, 2] = np.radians(yaw_end) * t / t[-1]
+    return t, x
+
+
+def test_a_track_12_percent_fast_and_swaying_is_measured_so_and_fails_only_the_targets_it_misses() -> None:
+    t, x = _track((0.0, 0.02), 1.12, 0.004, 1.0)  # lateral at 20 mm/s: 12 % fast, 4 mm of sway, 1 deg of yaw
+    m = sweep.metrics(t, x, (0.0, 0.02))
+    assert abs(m["speed_error"] - 0.12) < 0.005
+    assert abs(m["yaw_drift_deg"] - 1.0) < 1e-9
+    assert abs(m["drift_per_08m_mm"] - 4.0) < 0.05  # the sway's amplitude, over a full 0.8 m
+    assert m["path_rmse_mm"] > 0.12 * 0.02 * 1000 * 40 / np.sqrt(3) * 0.9  # behind or ahead grows with time
+    assert sweep.checks({"case": "walk", **m}) == {"yaw": True, "drift": True, "speed": False}
+    assert sweep.checks({"case": "omni60", **m}) == {"yaw": True, "path": False, "speed": False}
+
+
+def test_a_run_that_failed_meets_no_target() -> None:
+    assert not any(sweep.checks({"case": "omni60", "error": "DivergenceError: ..."}).values())
