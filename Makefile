@@ -19,7 +19,7 @@ run: $(STAMP)
 # Two passes: the suite on every core (one worker per test file, so a file's shared fixtures run once), then
 # the real-time tests (marked serial: a servo emulator on a pseudo-terminal, the live view's pacing) alone.
 test: $(STAMP) results-check
-	$(BIN)/python -m pytest -q -n auto --dist loadfile -m "not serial"
+	$(BIN)/python -m pytest -q -n auto --dist worksteal -m "not serial"
 	$(BIN)/python -m pytest -q -m serial
 
 # Regenerate everything committed under results/ (about two hours on 2 cores, most of it the gait search),
