@@ -16,8 +16,9 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/slot run experiment=perturb
 
-# Two passes: the suite on every core (one worker per test file, so a file's shared fixtures run once), then
-# the real-time tests (marked serial: a servo emulator on a pseudo-terminal, the live view's pacing) alone.
+# Two passes: the suite on every core (worksteal: an idle worker takes half of another's queue, so no long file
+# holds the end up), then the real-time tests (marked serial: a servo emulator on a pseudo-terminal, the live
+# view's pacing) alone.
 test: $(STAMP) results-check
 	$(BIN)/python -m pytest -q -n auto --dist worksteal -m "not serial"
 	$(BIN)/python -m pytest -q -m serial
