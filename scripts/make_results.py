@@ -253,6 +253,15 @@ RUNS = {
         "experiment.cost_average=gait_cycle",
     ],
     "perturb_cosserat_standstill": ["experiment=perturb", "plant=cosserat", "gait.velocity=[0,0]"],
+    # The MPC's attitude correction left out of the tendon offsets (controller.attitude_from_plan=false; not the
+    # default yet): Table I walking, for the comparison on the walking page.
+    "perturb_cosserat_no_plan_attitude": [
+        "experiment=perturb",
+        "plant=cosserat",
+        f"gait.velocity=[{TABLE1},0]",
+        "experiment.cost_average=gait_cycle",
+        "controller.attitude_from_plan=false",
+    ],
     # omni60 for 120 s: does the 45/90-deg cycle blend hold its line however long?
     "simulate_cosserat_omni60_120s": [
         "experiment=simulate",
@@ -587,6 +596,18 @@ SWEEPS = {
             for h in HEADINGS
         ),
         "experiment.duration=45",  # as long as omni60: the diagonal headings fall further behind over longer runs
+    ],
+    "headings_cosserat_no_plan_attitude": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=walk",
+        "gait.velocity="
+        + ",".join(
+            f"[{HEADING_SPEED * math.cos(math.radians(h)):.5f},{HEADING_SPEED * math.sin(math.radians(h)):.5f}]"
+            for h in HEADINGS
+        ),
+        "experiment.duration=45",
+        "controller.attitude_from_plan=false",
     ],
 }
 

@@ -406,3 +406,33 @@ def test_the_library_envelope_passes_through_each_primitive_and_is_what_the_cont
         assert lib.max_speed(p.heading_deg) == pytest.approx(p.speed_mps, rel=1e-9)
     np.testing.assert_allclose(top, [lib.max_speed(h) for h in headings])
     assert envelope(replace(style, primitives=style.primitives[:1]), TOP) is None  # one direction cannot steer
+
+
+def test_without_the_plans_attitude_the_legs_get_its_height_alone() -> None:
+    """`controller.attitude_from_plan=false`: a plan that presses the front legs harder than the rear moves
+    every tendon by the plan's common offset (its height part), the same on every leg; on, the front legs
+    get more than the rear by the plan's difference."""
+    offsets = {}
+    for flag in ("true", "false"):
+        cfg = load(
+            "plant=cosserat",
+            f"controller.attitude_from_plan={flag}",
+            "controller.attitude_trim=0",
+            "controller.heading_kp=0",
+            "controller.heading_ki=0",
+        )
+        robot = build_robot(cfg.robot)
+        ctrl = make_controller(cfg, robot)
+        x = nominal_state(robot)
+        x[5] = cfg.gait.height
+        feet = x[3:6] + robot.feet_body
+        front = robot.corners_body[:, 0] > 0
+        plan = np.tile([0.0, 0.0, ctrl.weight / 4.0], (4, 1))
+        plan[:, 2] += np.where(front, 1.0, -0.5)  # 1 N more on each front leg, 0.5 N less on each rear one
+        offsets[flag] = ctrl.adjust(x, feet, plan, None)
+    slope = cfg.robot.actuation.slope_n_per_deg
+    np.testing.assert_allclose(offsets["false"], offsets["false"][0], atol=1e-12)
+    np.testing.assert_allclose(offsets["false"].mean(), offsets["true"].mean(), atol=1e-12)
+    assert offsets["false"][0] > 0  # the plan asks for more force in all: the legs press harder
+    difference = offsets["true"][front].mean() - offsets["true"][~front].mean()
+    np.testing.assert_allclose(difference, 1.5 / slope, rtol=1e-9)

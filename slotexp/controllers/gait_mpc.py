@@ -131,6 +131,9 @@ class GaitMpcConfig(GaitControllerConfig):
     # differences (attitude), are averaged over offset_cycles gait cycles
     height_at_once: float = num_field(0.25, lo=0.0, hi=1.0, unit="")
     offset_cycles: int = num_field(2, lo=1, hi=8, unit="cycles")
+    # whether the legs' differences in the plan's normal forces (its attitude correction) offset the tendons too;
+    # off: only their common part (height) does, and the attitude is left to the gait and the trim
+    attitude_from_plan: bool = True
     # rate (1/s) of the integral trim that levels the stance: each leg's tendon moves by the corner height the
     # measured roll and pitch put it off by; 0 (default) turns it off
     attitude_trim: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s")
@@ -186,6 +189,8 @@ class GaitMpcController(GaitController):
         self.yaw_rate = float(np.clip(self.yaw_rate + ctrl.yaw_gain * self.period * yaw_accel, -limit, limit))
         offsets = without_twist((forces[:, 2] - self.weight / 4.0) / self.cfg.robot.actuation.slope_n_per_deg, lever)
         common = float(offsets.mean())
+        if not ctrl.attitude_from_plan:  # the height alone: the gait keeps the posture it walks in
+            offsets = np.full_like(offsets, common)
         at_once = ctrl.height_at_once * common
         self.cycle_offsets.append(offsets - at_once)
         corners = self.robot.corners_body
