@@ -584,31 +584,22 @@ DERIVED = {
 
 # Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
 HEADINGS = range(0, 360, 45)  # deg, world frame (the robot starts at zero yaw)
+# The walk in 8 directions at HEADING_SPEED under gait_mpc, 45 s each (as long as omni60: the diagonal headings fall
+# further behind over longer runs): speed and heading error per direction.
+HEADING_SWEEP = [
+    "experiment=simulate",
+    "plant=cosserat",
+    "gait=walk",
+    "gait.velocity="
+    + ",".join(
+        f"[{HEADING_SPEED * math.cos(math.radians(h)):.5f},{HEADING_SPEED * math.sin(math.radians(h)):.5f}]"
+        for h in HEADINGS
+    ),
+    "experiment.duration=45",
+]
 SWEEPS = {
-    # The walk in 8 directions at HEADING_SPEED under gait_mpc: speed and heading error per direction.
-    "headings_cosserat": [
-        "experiment=simulate",
-        "plant=cosserat",
-        "gait=walk",
-        "gait.velocity="
-        + ",".join(
-            f"[{HEADING_SPEED * math.cos(math.radians(h)):.5f},{HEADING_SPEED * math.sin(math.radians(h)):.5f}]"
-            for h in HEADINGS
-        ),
-        "experiment.duration=45",  # as long as omni60: the diagonal headings fall further behind over longer runs
-    ],
-    "headings_cosserat_no_plan_attitude": [
-        "experiment=simulate",
-        "plant=cosserat",
-        "gait=walk",
-        "gait.velocity="
-        + ",".join(
-            f"[{HEADING_SPEED * math.cos(math.radians(h)):.5f},{HEADING_SPEED * math.sin(math.radians(h)):.5f}]"
-            for h in HEADINGS
-        ),
-        "experiment.duration=45",
-        "controller.attitude_from_plan=false",
-    ],
+    "headings_cosserat": HEADING_SWEEP,
+    "headings_cosserat_no_plan_attitude": [*HEADING_SWEEP, "controller.attitude_from_plan=false"],
 }
 
 
