@@ -86,3 +86,56 @@ def lateral_drift(xy: np.ndarray, direction: np.ndarray, distance: float) -> tup
     mask = covered <= distance
     mask[0] = True
     return float(np.max(np.abs(rel[mask] @ n))), float(min(covered[-1], distance))
+
+
+def tracking(
+    t: np.ndarray,
+    x: np.ndarray,
+    x_ref: np.ndarray,
+    velocity,
+    drift_distance: float,
+    measure_from_s: float = 2.0,
+    yaw_rate: float = 0.0,
+) -> dict[str, float]:
+    """How a run tracked its reference (docs/results/index.md, "Definitions"), from its states ``x`` and
+    reference ``x_ref`` (N, 12) at times ``t``. Speed, heading and the speed error are the mean over
+    t >= ``measure_from_s`` (net displacement over time); the commanded direction is ``velocity``'s (the
+    world frame, the robot starting at zero yaw), ``yaw_rate`` the commanded one (rad/s); the drift is
+    :func:`lateral_drift` over ``drift_distance``."""
+    xy, xy_ref = x[:, 3:5], x_ref[:, 3:5]
+    direction = np.asarray(velocity, dtype=float)
+    commanded = float(np.linalg.norm(direction))
+    if commanded < 1e-12:
+        direction = np.array([1.0, 0.0])
+    drift, covered = lateral_drift(xy, direction, drift_distance)
+    start = int(np.searchsorted(t, t[0] + measure_from_s))
+    start = min(start, len(t) - 2)
+    span = float(t[-1] - t[start])
+    mean_v = (xy[-1] - xy[start]) / span
+    d = direction / np.linalg.norm(direction)
+    along = float(mean_v @ d)
+    heading_error = float(np.degrees(np.arctan2(mean_v[1], mean_v[0]) - np.arctan2(d[1], d[0])))
+    heading_error = (heading_error + 180.0) % 360.0 - 180.0
+    yaw = np.unwrap(x[:, 2])
+    mean_yaw_rate = float((yaw[-1] - yaw[start]) / span)  # turning in place is measured by this
+    return {
+        "speed_mps": float(np.linalg.norm(mean_v)),
+        "speed_along_mps": along,
+        "speed_error_fraction": (along - commanded) / commanded if commanded > 0 else float("nan"),
+        "heading_error_deg": heading_error if commanded > 0 else float("nan"),
+        "yaw_drift_deg": float(np.degrees(x[-1, 2] - x_ref[-1, 2])),
+        "yaw_rate_radps": mean_yaw_rate,
+        "yaw_rate_error_fraction": (mean_yaw_rate - yaw_rate) / yaw_rate if abs(yaw_rate) > 0 else float("nan"),
+        "lateral_drift_per_m": drift / covered if covered > 0 else float("nan"),
+        "measured_from_s": float(t[start]),
+        "duration_s": float(t[-1] - t[0]),
+        "com_rmse_x_m": rmse(x[:, 3], x_ref[:, 3]),
+        "com_rmse_y_m": rmse(x[:, 4], x_ref[:, 4]),
+        "com_rmse_z_m": rmse(x[:, 5], x_ref[:, 5]),
+        "path_rmse_m": float(np.sqrt(np.mean(np.sum((xy - xy_ref) ** 2, axis=1)))),
+        "mean_vx": float(np.mean(x[:, 9])),
+        "mean_vy": float(np.mean(x[:, 10])),
+        "distance_m": float(np.linalg.norm(xy[-1] - xy[0])),
+        "lateral_drift_m": drift,
+        "drift_measured_over_m": covered,
+    }
