@@ -136,9 +136,13 @@ def run(directory: Path, deadline: float, workers: int) -> None:
     for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
         os.environ.setdefault(k, "1")
     start = time.perf_counter()
+    from slotexp.bench._accuracy import Case, run_case
+
     settings = json.loads((directory / "settings.json").read_text())
-    models = list(pickle.loads((directory / "models.pkl").read_bytes()))
-    _task((str(directory), 0, settings[0], models[0], "walk"))  # compile or load every kernel once, here
+    cfgs = pickle.loads((directory / "models.pkl").read_bytes())
+    models = list(cfgs)
+    # compile or load every kernel once, here, on a short walk (the workers then load them from numba's cache)
+    run_case(cfgs[models[0]], Case("warm-up", "baseline", CASES["walk"][0], 0.2, 0.0))
     print(f"kernels ready in {time.perf_counter() - start:.0f} s", flush=True)
     tasks = iter([(str(directory), i, s, m, c) for i, s in enumerate(settings) for m in models for c in CASES])
     total = len(settings) * len(models) * len(CASES)
