@@ -253,14 +253,14 @@ RUNS = {
         "experiment.cost_average=gait_cycle",
     ],
     "perturb_cosserat_standstill": ["experiment=perturb", "plant=cosserat", "gait.velocity=[0,0]"],
-    # The MPC's attitude correction left out of the tendon offsets (controller.attitude_from_plan=false; not the
-    # default yet): Table I walking, for the comparison on the walking page.
-    "perturb_cosserat_no_plan_attitude": [
+    # The MPC's attitude correction in the tendon offsets too (controller.attitude_from_plan=true, the default until
+    # it was measured): Table I walking, old beside new on the walking page.
+    "perturb_cosserat_plan_attitude": [
         "experiment=perturb",
         "plant=cosserat",
         f"gait.velocity=[{TABLE1},0]",
         "experiment.cost_average=gait_cycle",
-        "controller.attitude_from_plan=false",
+        "controller.attitude_from_plan=true",
     ],
     # omni60 for 120 s: does the 45/90-deg cycle blend hold its line however long?
     "simulate_cosserat_omni60_120s": [
@@ -599,7 +599,7 @@ HEADING_SWEEP = [
 ]
 SWEEPS = {
     "headings_cosserat": HEADING_SWEEP,
-    "headings_cosserat_no_plan_attitude": [*HEADING_SWEEP, "controller.attitude_from_plan=false"],
+    "headings_cosserat_plan_attitude": [*HEADING_SWEEP, "controller.attitude_from_plan=true"],
 }
 
 
