@@ -63,6 +63,7 @@ SETTINGS_BOX = {  # the heading loop's settings: sampled log-uniformly, uniforml
     "attitude_trim": ("log", 0.03, 0.3, 3),
     "heading_cycles": ("choice", 1, 2, 0),
 }
+RECORDED = ("attitude_from_plan",)  # held, not sampled, but written into every setting (results/controller_sweep: true)
 _MODELS: dict | None = None
 
 
@@ -86,6 +87,8 @@ def save(out: Path, n: int, seed: int) -> None:
             else:
                 s[k] = rng.choice([a, b])
         settings.append(s)
+    for s in settings:  # held at the default, but written down: a sweep records the loop it ran
+        s.update({k: getattr(c, k) for k in RECORDED})
     (out / "settings.json").write_text(json.dumps(settings, indent=1) + "\n")
     print(f"wrote {out}/models.pkl ({len(cfgs)} models) and settings.json ({len(settings)} settings, seed {seed})")
 
@@ -204,7 +207,8 @@ def summarize(directory: Path) -> None:
             "held_out_of": marks[held].groupby("setting").met.size(),
         }
     )
-    settings = pd.DataFrame(rows).groupby("setting")[list(SETTINGS_BOX)].first()
+    table = pd.DataFrame(rows)
+    settings = table.groupby("setting")[[k for k in (*SETTINGS_BOX, *RECORDED) if k in table]].first()
     summary = by_setting.join(settings).reset_index().sort_values(["met", "yaw_met"], ascending=False)
     summary["default"] = summary.setting == 0
     summary.to_csv(directory / "summary.csv", index=False)

@@ -202,6 +202,14 @@ RUNS = {
         f"gait.velocity=[{WALK},0]",
         "experiment.duration=15",
     ],
+    "push_side_gait_mpc_plan_attitude": [  # the same push under the old default (the plan's attitude in the tendons)
+        "experiment=simulate",
+        "plant=cosserat",
+        "experiment.scenario=push_side",
+        f"gait.velocity=[{WALK},0]",
+        "experiment.duration=15",
+        "controller.attitude_from_plan=true",
+    ],
     # The paper's controller (eq. 11 + fixed schedule) on the soft legs: it does not walk.
     "simulate_cosserat_walk_paper_controller": [
         "experiment=simulate",
