@@ -23,6 +23,7 @@ WALK = 0.02
 WALK_FAST = 0.028
 CRAWL = 0.006
 OMNI = 0.015
+OMNI_INSIDE = 0.012  # omni60 inside the closed loop's own ceiling at 60 deg (about 15 mm/s; ceiling_cosserat)
 LATERAL = 0.015
 TABLE1 = 0.02  # the walk's own command (at 15 mm/s the partial stroke yaws more than the lean can hold)
 TABLE1_SLOW = 0.015  # the speed Table I walked at before the heading loop, kept for comparison
@@ -276,6 +277,15 @@ RUNS = {
         "plant=cosserat",
         "gait=omni60",
         f"gait.velocity=[{OMNI * 0.5:.4f},{OMNI * 0.8660254:.4f}]",
+        "experiment.duration=120",
+        "experiment.gif=false",
+    ],
+    # ... and at 12 mm/s, inside the closed loop's own ceiling at 60 deg (ceiling_cosserat), not only the library's
+    "simulate_cosserat_omni60_120s_12mms": [
+        "experiment=simulate",
+        "plant=cosserat",
+        "gait=omni60",
+        f"gait.velocity=[{OMNI_INSIDE * 0.5:.4f},{OMNI_INSIDE * 0.8660254:.4f}]",
         "experiment.duration=120",
         "experiment.gif=false",
     ],
@@ -605,8 +615,25 @@ HEADING_SWEEP = [
     ),
     "experiment.duration=45",
 ]
+# The closed loop's own ceiling per heading: the walk commanded beyond the library's envelope (the path loop then asks
+# for the envelope, the gaits at full stroke) in 16 directions, 30 s each; summary_polar.png sets the speed made
+# beside the envelope the library measured open loop.
+CEILING_SPEED = 0.03
+CEILING_SWEEP = [
+    "experiment=simulate",
+    "plant=cosserat",
+    "gait=walk",
+    "gait.velocity="
+    + ",".join(
+        f"[{CEILING_SPEED * math.cos(math.radians(h)):.5f},{CEILING_SPEED * math.sin(math.radians(h)):.5f}]"
+        for h in (22.5 * k for k in range(16))
+    ),
+    "experiment.duration=30",
+    "experiment.gif=false",
+]
 SWEEPS = {
     "headings_cosserat": HEADING_SWEEP,
+    "ceiling_cosserat": CEILING_SWEEP,
     "headings_cosserat_plan_attitude": [*HEADING_SWEEP, "controller.attitude_from_plan=true"],
 }
 

@@ -7,7 +7,10 @@ aggregated over the job's scenarios, the MPC update time (median, p99, max of
 ``/mpc/stats`` ``wall_time_s`` over every logged step but each log's first, which
 also pays the backend's one-off setup) and the infeasible steps
 (total, and in deterministic scenarios). Written as ``summary.csv``,
-``summary.md`` and ``summary.png`` in the multirun directory.
+``summary.md`` and ``summary.png`` in the multirun directory. A sweep over commanded
+velocities (``gait.velocity``) of runs that measure their speed also gets ``summary_polar.png``:
+the speed made per heading beside the command and, where the controller logs it, the
+library's envelope (``envelope_mps``; ``speed_of_envelope`` is the fraction made).
 """
 
 from __future__ import annotations
@@ -108,6 +111,57 @@ def _metrics(job: Path) -> dict[str, float]:
     return {}
 
 
+def _command(velocity: str) -> dict[str, float]:
+    """A swept ``gait.velocity`` ([vx, vy] m/s, body frame) as its heading (deg, 0-360) and speed (m/s)."""
+    try:
+        vx, vy = (float(v) for v in yaml.safe_load(velocity))
+    except (yaml.YAMLError, TypeError, ValueError):  # not a planar velocity: nothing to add
+        return {}
+    return {"command_heading_deg": math.degrees(math.atan2(vy, vx)) % 360.0, "command_speed_mps": math.hypot(vx, vy)}
+
+
+def _envelope(job: Path) -> dict[str, float]:
+    """The gait library's envelope in the command's direction (m/s), where the job's controller logs it
+    (``/controller`` ``max_speed``, controller=gait_mpc): the median over the run of what the gaits measured there
+    open loop, so a sweep over commands sets the speed the closed loop made beside what its gaits promised."""
+    paths = sorted((job / "logs").glob("*.mcap"))
+    if len(paths) != 1:  # one run per job (experiment=simulate); Table I's scenarios have no one direction
+        return {}
+    try:
+        log = read_log(paths[0], topics=(T.CONTROLLER,))
+    except LogReadError as exc:
+        raise UserError(f"{paths[0]}: {str(exc).splitlines()[0]}") from exc
+    if T.CONTROLLER not in log or "max_speed" not in log[T.CONTROLLER]:
+        return {}
+    return {"envelope_mps": float(np.median(log[T.CONTROLLER]["max_speed"].to_numpy(float)))}
+
+
+def _plot_polar(table: pd.DataFrame, path: Path) -> None:
+    """A sweep over commanded velocities: per job, the speed made at its direction of travel beside the command
+    and (where logged) the library's envelope, on the robot's compass (body frame, the robot starts at zero yaw)."""
+    heading = np.radians(table["command_heading_deg"].to_numpy(float))
+    order = np.argsort(heading)
+    travel = heading + np.radians(table.get("heading_error_deg", pd.Series(0.0, index=table.index)).fillna(0.0))
+
+    def closed(a: np.ndarray) -> np.ndarray:  # the line around the compass, back to its first point
+        a = np.asarray(a, float)[order]
+        return np.append(a, a[0]) if len(a) > 2 else a
+
+    fig = new_figure(6.5, 6.0)
+    ax = fig.add_subplot(projection="polar")
+    ax.plot(closed(heading), closed(1e3 * table["command_speed_mps"].to_numpy(float)), "--", color="0.6", lw=1,
+            label="commanded")  # fmt: skip
+    if "envelope_mps" in table:
+        ax.plot(closed(heading), closed(1e3 * table["envelope_mps"].to_numpy(float)), "-", color="C1", lw=1.2,
+                label="the library's envelope (open loop)")  # fmt: skip
+    ax.plot(closed(travel), closed(1e3 * table["speed_mps"].to_numpy(float)), "o-", color="C0", lw=1.2,
+            label="made (closed loop), at its direction of travel")  # fmt: skip
+    ax.set_rlabel_position(100)
+    ax.set_title("speed [mm/s] by commanded heading (body frame)", fontsize=9)
+    ax.legend(loc="lower right", bbox_to_anchor=(1.15, -0.02), fontsize=7)
+    save(fig, path)
+
+
 def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
     """Update time over every logged MPC step, and infeasible (fallback) steps."""
     walls, infeasible, infeasible_det, steps = [], 0, 0, 0
@@ -161,7 +215,12 @@ def summarize(multirun_dir: Path) -> pd.DataFrame:
         o = overrides[job]
         row = {"job": job.name, "solver": o.get("solver", _configured_solver(job))}
         row.update({k: o.get(k, "") for k in swept})
+        if "gait.velocity" in swept:
+            row.update(_command(o.get("gait.velocity", "")))
         row.update(_metrics(job))
+        row.update(_envelope(job))
+        if "speed_mps" in row and row.get("envelope_mps", 0.0) > 0.0:
+            row["speed_of_envelope"] = row["speed_mps"] / row["envelope_mps"]
         row.update(_timing(job, _deterministic(job)))
         if row["logs"] != "complete":
             print(f"warning: {job.name}: logs {row['logs']}: its row is not a whole run", file=sys.stderr)
@@ -182,6 +241,8 @@ def summarize(multirun_dir: Path) -> pd.DataFrame:
         f"before its end: that row is not a whole run) or missing.\n\n" + to_markdown(table) + "\n",
     )
     _plot(table, multirun_dir / "summary.png")
+    if "command_heading_deg" in table and "speed_mps" in table:
+        _plot_polar(table, multirun_dir / "summary_polar.png")
     return table
 
 

@@ -113,3 +113,36 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, sweep: Path, case: str
     assert str(target) in line or "multirun" in line
     if case in BROKEN_JOB:
         assert BROKEN_JOB[case][0].split("/")[-1] in line  # it names the file to fix
+
+
+def test_a_sweep_over_commanded_velocities_gets_the_envelope_and_a_polar(tmp_path: Path) -> None:
+    # Each job: the command it swept, the speed it made (metrics.json) and the envelope its controller logged on
+    # /controller (max_speed); the summary gains the envelope's median and the fraction made, and a polar figure
+    import json
+
+    from slotexp.record import Recorder
+
+    for i, (vx, vy, made, top) in enumerate([(0.03, 0.0, 0.012, 0.024), (0.0, 0.03, 0.018, 0.02)]):
+        job = tmp_path / f"{i}_gait.velocity=[{vx},{vy}]"
+        (job / ".hydra").mkdir(parents=True)
+        (job / ".hydra" / "overrides.yaml").write_text(f"- gait.velocity=[{vx},{vy}]\n- plant=cosserat\n")
+        (job / "metrics.json").write_text(json.dumps({"speed_mps": made, "heading_error_deg": -2.0}))
+        (job / "logs").mkdir()
+        with Recorder(job / "logs" / "walk.mcap") as rec:
+            for k, t in enumerate((0.0, 1 / 30, 2 / 30)):  # a median that is not the mean: one step at 0
+                rec.write("/controller", t, {"max_speed": 0.0 if k == 0 else top})
+    table = summarize(tmp_path)
+    assert list(table["gait.velocity"]) == ["[0.03,0.0]", "[0.0,0.03]"]
+    assert table["command_heading_deg"].tolist() == pytest.approx([0.0, 90.0])
+    assert table["command_speed_mps"].tolist() == pytest.approx([0.03, 0.03])
+    assert table["envelope_mps"].tolist() == pytest.approx([0.024, 0.02])
+    assert table["speed_of_envelope"].tolist() == pytest.approx([0.5, 0.9])
+    assert (tmp_path / "summary_polar.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # a sweep over something else has no envelope to set its speeds beside, and no polar
+    other = tmp_path / "other"
+    for i in range(2):
+        job = other / f"{i}_mpc.horizon={10 + i}"
+        (job / ".hydra").mkdir(parents=True)
+        (job / ".hydra" / "overrides.yaml").write_text(f"- mpc.horizon={10 + i}\n")
+        (job / "metrics.json").write_text(json.dumps({"speed_mps": 0.01}))
+    assert "envelope_mps" not in summarize(other) and not (other / "summary_polar.png").exists()
