@@ -67,8 +67,9 @@ RECORDED = ("attitude_from_plan",)  # held, not sampled, but written into every 
 _MODELS: dict | None = None
 
 
-def save(out: Path, n: int, seed: int) -> None:
-    """The models' configs (pickled, without their experiment) and the default plus ``n`` sampled settings."""
+def save(out: Path, n: int, seed: int, grid: tuple[str, list[float]] | None = None) -> None:
+    """The models' configs (pickled, without their experiment) and the default plus ``n`` sampled settings; with
+    ``grid`` (a setting and its values), the default and then the default with that setting at each value."""
     from slotexp.cli import compose_config
 
     out.mkdir(parents=True, exist_ok=True)
@@ -87,6 +88,9 @@ def save(out: Path, n: int, seed: int) -> None:
             else:
                 s[k] = rng.choice([a, b])
         settings.append(s)
+    if grid is not None:
+        key, values = grid
+        settings = [settings[0], *({**settings[0], key: type(getattr(c, key))(v)} for v in values)]
     for s in settings:  # held at the default, but written down: a sweep records the loop it ran
         s.update({k: getattr(c, k) for k in RECORDED})
     (out / "settings.json").write_text(json.dumps(settings, indent=1) + "\n")
@@ -231,6 +235,7 @@ def main() -> None:
     s.add_argument("directory", type=Path)
     s.add_argument("--settings", type=int, default=16, help="settings sampled besides the default")
     s.add_argument("--seed", type=int, default=36)
+    s.add_argument("--grid", help="KEY=V1,V2,...: the default with one setting at each value (no sampling)")
     r = sub.add_parser("run", help="run every setting on every model and case into DIR/sweep.jsonl")
     r.add_argument("directory", type=Path)
     r.add_argument("--deadline", type=float, default=math.inf, help="s after which no new run starts")
@@ -239,7 +244,16 @@ def main() -> None:
     m.add_argument("directory", type=Path)
     args = parser.parse_args()
     if args.verb == "save":
-        save(args.directory, args.settings, args.seed)
+        grid = None
+        if args.grid:
+            key, _, values = args.grid.partition("=")
+            try:
+                grid = (key, [float(v) for v in values.split(",")])
+            except ValueError:
+                grid = None
+            if key not in SETTINGS_BOX or grid is None:
+                parser.error(f"--grid {args.grid!r}: give KEY=V1,V2 (numbers), KEY one of {', '.join(SETTINGS_BOX)}")
+        save(args.directory, args.settings, args.seed, grid)
     elif args.verb == "run":
         run(args.directory, args.deadline, args.workers)
     else:

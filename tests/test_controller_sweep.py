@@ -37,3 +37,15 @@ def test_a_track_12_percent_fast_and_swaying_is_measured_so_and_fails_only_the_t
 
 def test_a_run_that_failed_meets_no_target() -> None:
     assert not any(sweep.checks({"case": "omni60", "error": "DivergenceError: ..."}).values())
+
+
+def test_a_grid_is_the_default_then_the_default_with_one_setting_at_each_value(tmp_path: Path) -> None:
+    import json
+
+    sweep.save(tmp_path, 0, 36, ("max_lean_deg", [25.0, 30.0]))
+    settings = json.loads((tmp_path / "settings.json").read_text())
+    assert [s["max_lean_deg"] for s in settings] == [15.0, 25.0, 30.0]  # setting 0 is the default: the one ranked
+    assert all(s["attitude_from_plan"] is False for s in settings)  # what the sweep ran with is written down
+    assert {k: v for k, v in settings[1].items() if k != "max_lean_deg"} == {
+        k: v for k, v in settings[0].items() if k != "max_lean_deg"
+    }
