@@ -124,6 +124,26 @@ def test_cycle_blend_alternates_whole_primitives_so_the_mean_velocity_points_whe
     assert weights["l"] / (weights["f"] + weights["l"]) == pytest.approx(0.05)
 
 
+@pytest.mark.parametrize("hold", [2, 3])
+def test_a_held_cycle_blend_switches_only_every_hold_cycles_and_keeps_the_mean_direction(hold: int) -> None:
+    """``hold`` cycles per choice: the same error diffusion over runs of cycles, so the choice changes only at a
+    run's start, and the mean velocity still points where commanded."""
+    prims = [_prim("f", 0.0, 0.03), _prim("l", 90.0, 0.02), _prim("b", 180.0, 0.03)]
+    lib = GaitLibrary(STYLE, prims, 70.0, TOP, hold=hold)
+    cmd = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4)]) * lib.max_speed(45.0) * 0.5
+    names = [lib.command(cmd, 0.0, cycle).parts[0][1].name for cycle in range(240)]
+    runs = [names[k : k + hold] for k in range(0, len(names), hold)]
+    assert all(len(set(r)) == 1 for r in runs)  # one choice per run of `hold` cycles
+    assert sum(a != b for a, b in zip(names, names[1:])) > 240 // (4 * hold)  # and it does alternate
+    total = sum(
+        p.speed_mps * np.array([np.cos(np.radians(p.heading_deg)), np.sin(np.radians(p.heading_deg))])
+        for p in (next(q for q in lib.translation if q.name == n) for n in names)
+    )
+    assert np.degrees(np.arctan2(total[1], total[0])) == pytest.approx(45.0, abs=1.0)
+    with pytest.raises(ValueError, match="at least one cycle"):
+        GaitLibrary(STYLE, prims, 70.0, TOP, hold=0)
+
+
 def test_the_library_times_each_primitive_to_its_neighbour_and_starts_the_clock_where_the_search_did() -> None:
     f = _prim("f", 0.0, 0.03)
     late = Primitive("l", f.base_deg, f.amplitude_deg, f.phase + 0.4, 90.0, 0.02)  # f's legs, 0.4 cycles off

@@ -19,7 +19,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..actuation import tendon_angle_deg
-from ..config import ControllerConfig, SlotConfig, check_library, choice_field
+from ..config import ControllerConfig, SlotConfig, check_library, choice_field, num_field
 from ..errors import ConfigError
 from ..gait import contact_plan
 from ..locomotion.library import GaitCommand, GaitLibrary
@@ -48,6 +48,9 @@ class GaitControllerConfig(ControllerConfig):
     # how the two primitives bracketing a direction combine: whole cycles of one or the other, their
     # schedules mixed, or one primitive with their parameters interpolated (slotexp/locomotion/library.py)
     blend: str = choice_field("cycles", "cycles", "schedules", "parameters")
+    # blend=cycles: how many gait cycles each choice of primitive is held; every switch between two gaits costs a
+    # transient (the legs' loads rebuild), and fewer switches zigzag wider across the path (library.py)
+    blend_hold: int = num_field(3, lo=1, hi=8, unit="cycles")
 
 
 class GaitController(MpcController):
@@ -70,7 +73,9 @@ class GaitController(MpcController):
         library = _style_library(cfg)
         self.top = cfg.robot.leg.tendon_max_deg
         self.standing = float(tendon_angle_deg(np.array([self.weight / 4.0]), cfg.robot.actuation, self.top)[0])
-        self.library = GaitLibrary.from_config(library[cfg.gait.style], self.standing, self.top, cfg.controller.blend)
+        self.library = GaitLibrary.from_config(
+            library[cfg.gait.style], self.standing, self.top, cfg.controller.blend, cfg.controller.blend_hold
+        )
         self.style = self.library.style
         self.velocity = np.asarray(cfg.gait.velocity, dtype=float).copy()  # body-frame gait command, m/s
         self.psi = self.library.start_phase(self.velocity)  # the gait clock's phase, cycles

@@ -11,7 +11,9 @@ primitives at the style's clock (:func:`.primitives.mix`):
     across the commanded direction stays near zero (error diffusion, as in a
     sigma-delta modulator). Every cycle is a gait the search found and measured;
     the average velocity points where commanded. The two gaits may phase their legs
-    differently: a mix of them, sample by sample, is not a gait between them;
+    differently: a mix of them, sample by sample, is not a gait between them. Each
+    choice holds for ``hold`` cycles: a switch costs a transient while the legs'
+    loads rebuild, and more cycles per choice zigzag wider across the path;
   - ``"schedules"``: their schedules mixed sample by sample, in proportion to the
     angle between them (right for neighbours with the same leg sequence);
   - ``"parameters"``: one primitive with their parameters interpolated
@@ -72,11 +74,15 @@ class GaitLibrary:
         standing_deg: float,
         top_deg: float,
         blend: str = "cycles",
+        hold: int = 1,
     ) -> None:
         if blend not in BLENDS:
             raise ValueError(f"blend must be one of {', '.join(BLENDS)}, not {blend!r}")
+        if hold < 1:
+            raise ValueError(f"hold must be at least one cycle, not {hold}")
         self.style = style
         self.blend = blend
+        self.hold = hold
         self.top = top_deg
         self.still = Primitive.still("still", standing_deg)
         moving = sorted(
@@ -126,10 +132,10 @@ class GaitLibrary:
 
     @classmethod
     def from_config(
-        cls, cfg: GaitStyleConfig, standing_deg: float, top_deg: float, blend: str = "cycles"
+        cls, cfg: GaitStyleConfig, standing_deg: float, top_deg: float, blend: str = "cycles", hold: int = 1
     ) -> GaitLibrary:
         prims = [Primitive.from_config(p) for p in cfg.primitives]
-        return cls(GaitStyle(cfg.frequency_hz, cfg.duty, cfg.sharpness), prims, standing_deg, top_deg, blend)
+        return cls(GaitStyle(cfg.frequency_hz, cfg.duty, cfg.sharpness), prims, standing_deg, top_deg, blend, hold)
 
     def _bracket(self, heading_deg: float) -> tuple[Primitive, Primitive, float]:
         """The two primitives whose headings bracket ``heading_deg`` (cyclically) and the blend fraction."""
@@ -166,8 +172,9 @@ class GaitLibrary:
         return self._share(heading_deg)[4]
 
     def _cycle_choice(self, a: Primitive, b: Primitive, heading_deg: float, cycle: int) -> Primitive:
-        """``a`` or ``b`` for this cycle (decided at its start): the one that keeps the running sum of the
-        chosen velocities across ``heading_deg`` nearer zero (error diffusion)."""
+        """``a`` or ``b`` for this cycle (decided at the start of each run of ``hold`` cycles): the one that keeps
+        the running sum of the chosen velocities across ``heading_deg`` nearer zero (error diffusion)."""
+        cycle //= self.hold  # a choice holds for `hold` cycles: each is one step of the diffusion
         if cycle != self._cycle:
             across_a = self._across_along(a, heading_deg)[0]
             across_b = self._across_along(b, heading_deg)[0]
