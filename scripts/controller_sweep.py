@@ -63,7 +63,9 @@ SETTINGS_BOX = {  # the heading loop's settings: sampled log-uniformly, uniforml
     "attitude_trim": ("log", 0.03, 0.3, 3),
     "heading_cycles": ("choice", 1, 2, 0),
 }
-RECORDED = ("attitude_from_plan",)  # held, not sampled, but written into every setting (results/controller_sweep: true)
+# held, not sampled, but written into every setting (results/controller_sweep ran with attitude_from_plan true and
+# blend_hold 1)
+RECORDED = ("attitude_from_plan", "blend_hold")
 _MODELS: dict | None = None
 
 
@@ -92,7 +94,7 @@ def save(out: Path, n: int, seed: int, grid: tuple[str, list[float]] | None = No
         key, values = grid
         settings = [settings[0], *({**settings[0], key: type(getattr(c, key))(v)} for v in values)]
     for s in settings:  # held at the default, but written down: a sweep records the loop it ran
-        s.update({k: getattr(c, k) for k in RECORDED})
+        s.update({k: getattr(c, k) for k in RECORDED if k not in s})
     (out / "settings.json").write_text(json.dumps(settings, indent=1) + "\n")
     print(f"wrote {out}/models.pkl ({len(cfgs)} models) and settings.json ({len(settings)} settings, seed {seed})")
 
@@ -251,8 +253,9 @@ def main() -> None:
                 grid = (key, [float(v) for v in values.split(",")])
             except ValueError:
                 grid = None
-            if key not in SETTINGS_BOX or grid is None:
-                parser.error(f"--grid {args.grid!r}: give KEY=V1,V2 (numbers), KEY one of {', '.join(SETTINGS_BOX)}")
+            if key not in (*SETTINGS_BOX, *RECORDED) or grid is None:
+                keys = ", ".join((*SETTINGS_BOX, *RECORDED))
+                parser.error(f"--grid {args.grid!r}: give KEY=V1,V2 (numbers), KEY one of {keys}")
         save(args.directory, args.settings, args.seed, grid)
     elif args.verb == "run":
         run(args.directory, args.deadline, args.workers)

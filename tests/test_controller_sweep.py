@@ -49,3 +49,5 @@ def test_a_grid_is_the_default_then_the_default_with_one_setting_at_each_value(t
     assert {k: v for k, v in settings[1].items() if k != "max_lean_deg"} == {
         k: v for k, v in settings[0].items() if k != "max_lean_deg"
     }
+    sweep.save(tmp_path, 0, 36, ("blend_hold", [1.0]))  # a held setting can be the grid's too, and is not reset
+    assert [s["blend_hold"] for s in json.loads((tmp_path / "settings.json").read_text())] == [3, 1]
