@@ -39,9 +39,10 @@ def test_a_run_that_failed_meets_no_target() -> None:
     assert not any(sweep.checks({"case": "omni60", "error": "DivergenceError: ..."}).values())
 
 
-def test_a_grid_is_the_default_then_the_default_with_one_setting_at_each_value(tmp_path: Path) -> None:
+def test_a_grid_is_the_default_then_the_default_with_one_setting_at_each_value(tmp_path: Path, monkeypatch) -> None:
     import json
 
+    monkeypatch.setattr(sweep, "MODELS", {"default": []})  # one model's config is enough to write the settings
     sweep.save(tmp_path, 0, 36, ("max_lean_deg", [25.0, 30.0]))
     settings = json.loads((tmp_path / "settings.json").read_text())
     assert [s["max_lean_deg"] for s in settings] == [15.0, 25.0, 30.0]  # setting 0 is the default: the one ranked
