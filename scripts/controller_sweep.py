@@ -252,7 +252,7 @@ def main() -> None:
             try:
                 grid = (key, [float(v) for v in values.split(",")])
             except ValueError:
-                grid = None
+                pass  # refused below, with the keys named
             if key not in (*SETTINGS_BOX, *RECORDED) or grid is None:
                 keys = ", ".join((*SETTINGS_BOX, *RECORDED))
                 parser.error(f"--grid {args.grid!r}: give KEY=V1,V2 (numbers), KEY one of {keys}")

@@ -602,17 +602,21 @@ DERIVED = {
 
 # Sweeps: `slot run -m ...` (Hydra multirun), then `slot summarize` makes one table of the jobs.
 HEADINGS = range(0, 360, 45)  # deg, world frame (the robot starts at zero yaw)
+
+
 # The walk in 8 directions at HEADING_SPEED under gait_mpc, 45 s each (as long as omni60: the diagonal headings fall
 # further behind over longer runs): speed and heading error per direction.
+def velocity_sweep(speed: float, headings) -> str:
+    """``gait.velocity=`` swept over ``headings`` (deg) at ``speed`` (m/s): one [vx,vy] per heading."""
+    values = (f"[{speed * math.cos(math.radians(h)):.5f},{speed * math.sin(math.radians(h)):.5f}]" for h in headings)
+    return "gait.velocity=" + ",".join(values)
+
+
 HEADING_SWEEP = [
     "experiment=simulate",
     "plant=cosserat",
     "gait=walk",
-    "gait.velocity="
-    + ",".join(
-        f"[{HEADING_SPEED * math.cos(math.radians(h)):.5f},{HEADING_SPEED * math.sin(math.radians(h)):.5f}]"
-        for h in HEADINGS
-    ),
+    velocity_sweep(HEADING_SPEED, HEADINGS),
     "experiment.duration=45",
 ]
 # The closed loop's own ceiling per heading: the walk commanded beyond the library's envelope (the path loop then asks
@@ -623,11 +627,7 @@ CEILING_SWEEP = [
     "experiment=simulate",
     "plant=cosserat",
     "gait=walk",
-    "gait.velocity="
-    + ",".join(
-        f"[{CEILING_SPEED * math.cos(math.radians(h)):.5f},{CEILING_SPEED * math.sin(math.radians(h)):.5f}]"
-        for h in (22.5 * k for k in range(16))
-    ),
+    velocity_sweep(CEILING_SPEED, (22.5 * k for k in range(16))),
     "experiment.duration=30",
     "experiment.gif=false",
 ]

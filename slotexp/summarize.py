@@ -120,22 +120,6 @@ def _command(velocity: str) -> dict[str, float]:
     return {"command_heading_deg": math.degrees(math.atan2(vy, vx)) % 360.0, "command_speed_mps": math.hypot(vx, vy)}
 
 
-def _envelope(job: Path) -> dict[str, float]:
-    """The gait library's envelope in the command's direction (m/s), where the job's controller logs it
-    (``/controller`` ``max_speed``, controller=gait_mpc): the median over the run of what the gaits measured there
-    open loop, so a sweep over commands sets the speed the closed loop made beside what its gaits promised."""
-    paths = sorted((job / "logs").glob("*.mcap"))
-    if len(paths) != 1:  # one run per job (experiment=simulate); Table I's scenarios have no one direction
-        return {}
-    try:
-        log = read_log(paths[0], topics=(T.CONTROLLER,))
-    except LogReadError as exc:
-        raise UserError(f"{paths[0]}: {str(exc).splitlines()[0]}") from exc
-    if T.CONTROLLER not in log or "max_speed" not in log[T.CONTROLLER]:
-        return {}
-    return {"envelope_mps": float(np.median(log[T.CONTROLLER]["max_speed"].to_numpy(float)))}
-
-
 def _plot_polar(table: pd.DataFrame, path: Path) -> None:
     """A sweep over commanded velocities: per job, the speed made at its direction of travel beside the command
     and (where logged) the library's envelope, on the robot's compass (body frame, the robot starts at zero yaw)."""
@@ -162,18 +146,25 @@ def _plot_polar(table: pd.DataFrame, path: Path) -> None:
     save(fig, path)
 
 
-def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
-    """Update time over every logged MPC step, and infeasible (fallback) steps."""
+def _from_logs(job: Path, deterministic: dict[str, bool]) -> tuple[dict[str, float], dict[str, float]]:
+    """What the job's logs say, each log read once: the update time over every logged MPC step and the
+    infeasible (fallback) steps; and, for a job of one run whose controller logs it (``/controller``
+    ``max_speed``, controller=gait_mpc), the gait library's envelope in the command's direction (m/s, the
+    median over the run of what the gaits measured there open loop), so that a sweep over commands sets the
+    speed the closed loop made beside what its gaits promised. Table I's scenarios have no one direction."""
     walls, infeasible, infeasible_det, steps = [], 0, 0, 0
     incomplete: list[str] = []
+    envelope: dict[str, float] = {}
     paths = sorted((job / "logs").glob("*.mcap"))
     for path in paths:
         try:
-            log = read_log(path, topics=(T.MPC_STATS,))
+            log = read_log(path, topics=(T.MPC_STATS, T.CONTROLLER))
         except LogReadError as exc:
             raise UserError(f"{path}: {str(exc).splitlines()[0]}") from exc
         if log.truncated or "summary" not in log.metadata:  # killed, or stopped before its end
             incomplete.append(path.name)
+        if len(paths) == 1 and T.CONTROLLER in log and "max_speed" in log[T.CONTROLLER]:
+            envelope["envelope_mps"] = float(np.median(log[T.CONTROLLER]["max_speed"].to_numpy(float)))
         if T.MPC_STATS not in log:
             continue
         stats = log[T.MPC_STATS]
@@ -185,14 +176,14 @@ def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
         steps += len(stats)
     w = np.concatenate(walls) * 1e3 if walls else np.zeros(0)
     logs = "missing" if not paths else ("incomplete: " + " ".join(incomplete) if incomplete else "complete")
-    if not w.size:
-        return {
-            "logs": logs,
-            "steps": steps,
-            "infeasible_steps": infeasible,
-            "infeasible_deterministic": infeasible_det,
-        }
-    return {
+    timing: dict[str, float | str] = {"logs": logs, "steps": steps}
+    if w.size:
+        timing["update_median_ms"] = float(np.median(w))
+        timing["update_p99_ms"] = float(np.percentile(w, 99))
+        timing["update_max_ms"] = float(w.max())
+    timing.update(infeasible_steps=infeasible, infeasible_deterministic=infeasible_det)
+    return timing, envelope
+    timing = {
         "logs": logs,
         "steps": steps,
         "update_median_ms": float(np.median(w)),
@@ -201,6 +192,7 @@ def _timing(job: Path, deterministic: dict[str, bool]) -> dict[str, float]:
         "infeasible_steps": infeasible,
         "infeasible_deterministic": infeasible_det,
     }
+    return timing, envelope
 
 
 def summarize(multirun_dir: Path) -> pd.DataFrame:
@@ -217,11 +209,12 @@ def summarize(multirun_dir: Path) -> pd.DataFrame:
         row.update({k: o.get(k, "") for k in swept})
         if "gait.velocity" in swept:
             row.update(_command(o.get("gait.velocity", "")))
+        timing, envelope = _from_logs(job, _deterministic(job))
         row.update(_metrics(job))
-        row.update(_envelope(job))
+        row.update(envelope)
         if "speed_mps" in row and row.get("envelope_mps", 0.0) > 0.0:
             row["speed_of_envelope"] = row["speed_mps"] / row["envelope_mps"]
-        row.update(_timing(job, _deterministic(job)))
+        row.update(timing)
         if row["logs"] != "complete":
             print(f"warning: {job.name}: logs {row['logs']}: its row is not a whole run", file=sys.stderr)
         rows.append(row)
