@@ -65,7 +65,7 @@ SETTINGS_BOX = {  # the heading loop's settings: sampled log-uniformly, uniforml
 }
 # held, not sampled, but written into every setting (results/controller_sweep ran with attitude_from_plan true and
 # blend_hold 1)
-RECORDED = ("attitude_from_plan", "blend_hold")
+RECORDED = ("attitude_from_plan", "blend_hold", "heading_learn_sign")
 _MODELS: dict | None = None
 
 

@@ -99,3 +99,36 @@ def test_the_heading_loop_turns_the_walking_robot_back_towards_its_heading(offse
     yaw = _walk(start, 16.0, record=leans)
     assert abs(yaw[-1]) < abs(offset_deg) - 2.0, yaw[-1]
     assert np.sign(np.mean(leans)) == -np.sign(offset_deg)
+
+
+def _first_order(b: float, d: float, seconds: float, learn_sign: bool, yaw0: float = 0.0) -> tuple[HeadingLoop, list]:
+    """The loop on a plant whose yaw rate (deg/s) is ``b * lean + d``, with a gait cycle of 16 steps."""
+    period, cycle = 1.0 / 30.0, 16
+    loop = HeadingLoop(10.0, 1.0, 15.0, period, 2 * cycle, cycle_steps=cycle, learn_sign=learn_sign)
+    yaw, trace = yaw0, []
+    for _ in range(int(seconds / period)):
+        yaw += period * (b * loop.update(yaw, 0.02) + d)
+        trace.append(yaw)
+    return loop, trace
+
+
+def test_the_loop_learns_a_reversed_lean_and_then_holds_the_heading() -> None:
+    """A plant on which the lean turns the robot the other way (the loaded side pushes harder than it brakes):
+    assuming the braking sign the loop winds the heading away without bound; learning it, it flips once and
+    holds the heading, and its estimate of the authority has the plant's sign."""
+    b, d = -0.03, -0.25  # deg/s per deg of lean, and the gait's own drift (the low-friction model's, measured)
+    fixed, fixed_trace = _first_order(b, d, 40.0, learn_sign=False)
+    learned, trace = _first_order(b, d, 40.0, learn_sign=True)
+    assert abs(fixed_trace[-1]) > 10.0 and fixed.sign == 1.0
+    assert learned.sign == -1.0 and len(learned.flips) == 1 and learned.authority < 0.0
+    assert abs(trace[-1]) < 0.1 and max(abs(y) for y in trace[len(trace) // 2 :]) < 0.5
+
+
+@pytest.mark.parametrize("yaw0", [0.0, 20.0, -20.0])
+def test_the_loop_keeps_a_right_sign_through_its_own_transients(yaw0: float) -> None:
+    """The lean turns the way the loop assumes: from on heading or 20 deg off either way, with the wound-up lean
+    that takes, it never flips, and it brings the heading back (a flip would turn a transient into a run-away)."""
+    loop, trace = _first_order(0.02, 0.1, 150.0, learn_sign=True, yaw0=yaw0)
+    assert loop.sign == 1.0 and not loop.flips
+    assert abs(trace[-1]) < 0.1
+    assert loop.authority > 0.0 or np.isnan(loop.authority)

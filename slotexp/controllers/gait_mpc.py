@@ -24,9 +24,10 @@ asks for is used where the legs can give it:
 - **Heading.** A PI loop on the measured heading error (averaged over
   ``heading_cycles`` gait cycles) leans the body onto the legs left or right of the
   direction of travel (:mod:`slotexp.locomotion.heading`: feet sliding across their
-  legs' planes brake the body by mu N each, so the loaded side turns it). The lean's
-  sign follows from the friction law; everything that mixed gaits to turn steered
-  the corrected plant erratically. Measured (default model, 30 s): the 20 mm/s walk,
+  legs' planes brake the body by mu N each, so the loaded side turns it). On some
+  models the loaded side's stronger push wins and the lean turns the other way, so
+  the loop learns its sign from its own moves (``heading_learn_sign``); everything
+  that mixed gaits to turn steered the corrected plant erratically. Measured (default model, 30 s): the 20 mm/s walk,
   the 15 mm/s lateral walk and the backward walk hold their heading within 1.5 deg
   (13.7 and 1.8 deg before, lateral and walk).
 - **Normal forces.** Each leg's tendon is offset from the gait by
@@ -149,6 +150,9 @@ class GaitMpcConfig(GaitControllerConfig):
     heading_ki: float = num_field(1.0, lo=0.0, hi=100.0, unit="deg of tendon per deg s")
     max_lean_deg: float = num_field(15.0, lo=0.0, hi=MAX_OFFSET_DEG, unit="deg")
     heading_cycles: int = num_field(2, lo=1, hi=8, unit="cycles")  # the heading error is averaged over these
+    # whether the loop learns which way the lean turns the robot (it differs between models: heading.py); off, it
+    # assumes the friction-braking sign (the loaded side turns towards itself)
+    heading_learn_sign: bool = True
     # path feedback (slotexp/locomotion/path.py): path_kp times the cycle-mean path error plus path_ki times its
     # integral, turned into the body frame by the measured yaw, is added to the command the MPC's plan moved
     path_kp: float = num_field(1.0, lo=0.0, hi=10.0, unit="1/s")
@@ -168,7 +172,15 @@ class GaitMpcController(GaitController):
         self.trim = np.zeros(4)  # each leg's attitude trim, deg of tendon
         ctrl = cfg.controller
         window = ctrl.heading_cycles * self.gait_cycle_steps(cfg)
-        self.heading = HeadingLoop(ctrl.heading_kp, ctrl.heading_ki, ctrl.max_lean_deg, self.period, window)
+        self.heading = HeadingLoop(
+            ctrl.heading_kp,
+            ctrl.heading_ki,
+            ctrl.max_lean_deg,
+            self.period,
+            window,
+            cycle_steps=self.gait_cycle_steps(cfg),
+            learn_sign=ctrl.heading_learn_sign,
+        )
         self.walking = bool(np.hypot(*cfg.gait.velocity) >= MIN_SPEED)  # the reference travels
         self.planned = self.velocity.copy()  # the command moved by the MPC's planned accelerations alone
         self.path = PathLoop(ctrl.path_kp, ctrl.path_ki, self.gait_cycle_steps(cfg), self.period)
@@ -229,5 +241,10 @@ class GaitMpcController(GaitController):
         return lean, lean_pattern(self.leg_yaw, float(np.arctan2(self.velocity[1], self.velocity[0])))
 
     def extra_telemetry(self) -> dict:
-        heading = {"heading_error_deg": self.heading.error_deg, "lean_deg": self.heading.lean}
+        heading = {
+            "heading_error_deg": self.heading.error_deg,
+            "lean_deg": self.heading.lean,
+            "lean_sign": self.heading.sign,
+            "lean_authority_dps_per_deg": self.heading.authority,  # the sign's evidence (NaN: none yet)
+        }
         return {**heading, "path_error_m": self.path.error}
