@@ -65,7 +65,7 @@ def _walk(overrides: list[str], seconds: float, lean: float | None = None, recor
     plant = make_plant(cfg, robot, x0)
     ctrl = make_controller(cfg, robot)
     if lean is not None:
-        ctrl.heading.update = lambda error, speed: lean
+        ctrl.heading.update = lambda error, speed, judge_sign=True: lean
     rng = np.random.default_rng(0)
     yaw = []
     for k in range(int(round(seconds * cfg.mpc.rate_hz))):

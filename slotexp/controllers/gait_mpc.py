@@ -235,7 +235,10 @@ class GaitMpcController(GaitController):
         error = float(np.degrees(wrap_angle(x[2] - yaw_des)))
         # the reference's speed, not the command's: a standing robot's velocity corrections are not travel
         speed = float(np.hypot(*self.cfg.gait.velocity))
-        lean = self.heading.update(error, speed)
+        # between whole cycles of two primitives the heading's rate jumps with the blend's choices, not the lean:
+        # no evidence of the lean's sign there (heading.py)
+        judge = self.command is None or not self.command.by_cycles
+        lean = self.heading.update(error, speed, judge_sign=judge)
         if not self.heading.steers(speed):  # standing: no slip for the lean to act through, and nothing to keep clear
             return 0.0, np.zeros(4)
         return lean, lean_pattern(self.leg_yaw, float(np.arctan2(self.velocity[1], self.velocity[0])))

@@ -59,6 +59,7 @@ SIGN_WINDOW_CYCLES = 12  # gait cycles of (lean, heading rate) the sign is judge
 SIGN_MIN_CYCLES = 8  # no judgement on fewer
 SIGN_T = 3.0  # standard errors the slope must stand from zero against the assumed sign
 SIGN_SPREAD = 0.4  # of max_lean_deg: how far the lean must have moved within the window
+TRIAL_CYCLES = 6  # gait cycles at the lean's limit with the heading error still growing before the other sign is tried
 
 
 def lean_pattern(leg_yaw: np.ndarray, heading: float) -> np.ndarray:
@@ -93,6 +94,12 @@ class HeadingLoop:
         self.flips: list[float] = []  # when (s of steering) the sign flipped
         self._samples: deque[tuple[float, float]] = deque(maxlen=SIGN_WINDOW_CYCLES)  # (mean lean, error rate)
         self._steps = 0  # steps steered
+        self._limit_cycles = 0  # whole gait cycles the lean has spent at its limit, the same way, in a row
+        self._limit_error = 0.0  # the heading error when that run began
+        self._limit_steps = 0  # steps of this cycle at the limit
+        self._trials = 0  # signs tried because a lean at its limit lost ground
+        self._limit_lean = 0.0  # the lean (deg) of that run
+        self._loss: dict[float, float] = {}  # per sign: how fast (deg/s) the error last grew with the lean at its limit
         self._anchor: float | None = None  # the error at this cycle's start
         self._lean_sum = 0.0
 
@@ -110,15 +117,18 @@ class HeadingLoop:
         """The heading error (deg) the loop acts on: the mean over the window (the last gait cycles)."""
         return float(np.mean(self.errors)) if self.errors else 0.0
 
-    def update(self, error_deg: float, speed: float) -> float:
+    def update(self, error_deg: float, speed: float, judge_sign: bool = True) -> float:
         """Take this step's heading error (measured minus desired yaw, deg) at commanded ``speed`` (m/s); return
-        the lean (deg of tendon; positive leans left of travel, which turns the robot left if ``sign`` is +1)."""
+        the lean (deg of tendon; positive leans left of travel, which turns the robot left if ``sign`` is +1).
+        ``judge_sign`` false: this step is no evidence of the lean's sign (the gait alternates two primitives)."""
         self.errors.append(error_deg)
         if not self.steers(speed):
             self.lean = 0.0
             self._anchor = None  # a cycle interrupted by standing is no sample
             return 0.0
-        if self.learn_sign:
+        if not judge_sign:
+            self._anchor, self._limit_cycles = None, 0  # this cycle is no sample, and no run at the limit
+        elif self.learn_sign:
             self._judge_sign(error_deg)
         e = self.error_deg
         integral = self.integral + e * self.period
@@ -127,6 +137,7 @@ class HeadingLoop:
             self.integral = integral
         pi = float(np.clip(-(self.kp * e + self.ki * self.integral), -self.max_lean, self.max_lean))
         self.lean = self.sign * pi
+        self._limit_steps += int(abs(pi) >= self.max_lean)
         self._lean_sum += self.lean
         self._steps += 1
         return self.lean
@@ -137,9 +148,35 @@ class HeadingLoop:
             return
         if self._anchor is not None:
             cycle = self.cycle_steps * self.period
-            self._samples.append((self._lean_sum / self.cycle_steps, (error_deg - self._anchor) / cycle))
+            lean = self._lean_sum / self.cycle_steps
+            self._samples.append((lean, (error_deg - self._anchor) / cycle))
             self._fit_and_flip()
-        self._anchor, self._lean_sum = error_deg, 0.0
+            self._try_other_sign(lean, error_deg)
+        self._anchor, self._lean_sum, self._limit_steps = error_deg, 0.0, 0
+
+    def _try_other_sign(self, lean: float, error_deg: float) -> None:
+        """A lean held at its limit gives the fit nothing to see. If it has stayed there, the same way, for
+        ``TRIAL_CYCLES`` cycles (twice as many after each trial) and the heading error still grew, the lean is
+        turning the robot the wrong way or too weakly: try the other sign. The 2 x max_lean step this makes is
+        the excitation the fit needs, and the fit flips the sign back if the trial was wrong."""
+        at_limit = self._limit_steps == self.cycle_steps
+        same_way = self._limit_cycles == 0 or np.sign(lean) == np.sign(self._limit_lean)
+        if not (at_limit and same_way):
+            self._limit_cycles = 0
+            return
+        if self._limit_cycles == 0:
+            self._limit_error, self._limit_lean = error_deg, lean
+        self._limit_cycles += 1
+        if self._limit_cycles < TRIAL_CYCLES * 2**self._trials:
+            return
+        loss = (abs(error_deg) - abs(self._limit_error)) / (self._limit_cycles * self.cycle_steps * self.period)
+        self._loss[self.sign] = loss  # deg/s the heading error grew by, at the limit, with this sign
+        self._limit_cycles = 0
+        other = self._loss.get(-self.sign)
+        if loss > 0.0 and (other is None or other < loss):  # untried, or it lost ground more slowly
+            self.sign = -self.sign
+            self.flips.append(self._steps * self.period)
+            self._trials += 1
 
     def _fit_and_flip(self) -> None:
         if len(self._samples) < SIGN_MIN_CYCLES:

@@ -62,6 +62,7 @@ class GaitCommand:
     speed_fraction: float
     yaw_fraction: float
     max_speed: float  # m/s the blend of this direction measured
+    by_cycles: bool = False  # whether whole cycles of two primitives alternate (blend="cycles" between them)
 
 
 class GaitLibrary:
@@ -225,4 +226,4 @@ class GaitLibrary:
             parts = [(s * (1.0 - lam), a), (s * lam, b), (1.0 - s - r, self.still)]
         if turn is not None:
             parts.append((r, turn))
-        return GaitCommand(parts, s, r if yaw_rate_dps >= 0 else -r, top)
+        return GaitCommand(parts, s, r if yaw_rate_dps >= 0 else -r, top, by_cycles)
