@@ -54,6 +54,25 @@ def test_mirror_images_swap_legs_reflect_the_heading_and_undo_themselves() -> No
     assert back.heading_deg == pytest.approx(30.0)
 
 
+@pytest.mark.parametrize("axis", ["x", "y"])
+def test_a_glide_symmetric_gait_is_its_own_mirror_image_half_a_cycle_later(axis: str) -> None:
+    """Primitive.glide_symmetric: every leg's schedule is its mirror leg's half a cycle on (the property that
+    makes a gait unable to turn a symmetric body over a cycle); a gait that already has it is left as it is."""
+    p = replace(_prim(heading=0.0 if axis == "x" else 90.0), phase=np.array([0.0, -0.17, 0.34, 0.48]))
+    g = p.glide_symmetric(axis)
+    psi = np.linspace(0.0, 1.0, 61)
+    np.testing.assert_allclose(g.mirrored(axis).angles(STYLE, psi + 0.5, TOP), g.angles(STYLE, psi, TOP), atol=1e-9)
+    assert not np.allclose(p.mirrored(axis).angles(STYLE, psi + 0.5, TOP), p.angles(STYLE, psi, TOP))
+    again = g.glide_symmetric(axis)
+    for field in ("base_deg", "amplitude_deg", "phase"):
+        np.testing.assert_allclose(getattr(again, field), getattr(g, field), atol=1e-12)
+    assert (p.along_axis(), replace(p, heading_deg=45.0).along_axis(), replace(p, heading_deg=None).along_axis()) == (
+        axis,
+        None,
+        None,
+    )
+
+
 def test_mix_is_the_weighted_sum_and_stance_is_the_pressing_half() -> None:
     a, b = _prim("a"), _prim("b", heading=90.0)
     psi = np.linspace(0.0, 1.0, 37)
