@@ -53,9 +53,20 @@ MODELS = {
     ],
 }
 HELD_OUT = "HELDOUT_"
+# ``save --sample-models N``: N models drawn across the ranges identification reported (the closed-loop issue's:
+# friction 0.1-0.8, E 7e6-2e7 Pa, damping 5-50 /s), E and damping log-uniform; an evaluation of one setting, so they
+# are held out (named with HELD_OUT) and rank nothing. (The horn zero, 90-130 deg, maps horn angles to tendon angles:
+# a controller that commands tendon angles runs the same at any, make_results.py.)
+SAMPLED = {
+    "robot.contact.friction": ("uniform", 0.1, 0.8, 3),
+    "robot.leg.youngs_modulus": ("log", 7e6, 2e7, -4),
+    "robot.leg.damping_per_s": ("log", 5.0, 50.0, 1),
+}
 # The issue's cases (velocity m/s, duration s) and targets: walks yaw <= 2 deg, drift <= 10 mm per 0.8 m, speed
 # within 5 %; omni60 yaw <= 3 deg, path RMSE <= 35 mm, speed within 10 %.
 CASES = {"walk": ((0.02, 0.0), 30.0), "lateral": ((0.0, 0.015), 30.0), "omni60": ((0.0075, 0.0129904), 45.0)}
+# on sampled models also the forward walk commanded beyond every model's reach: what that model can make (no targets)
+CEILING = {"ceiling": ((0.03, 0.0), 20.0)}
 SETTINGS_BOX = {  # the heading loop's settings: sampled log-uniformly, uniformly or from two; decimals kept
     "heading_kp": ("log", 4.0, 30.0, 2),
     "heading_ki": ("log", 0.25, 4.0, 3),
@@ -69,13 +80,38 @@ RECORDED = ("attitude_from_plan", "blend_hold", "heading_learn_sign")
 _MODELS: dict | None = None
 
 
-def save(out: Path, n: int, seed: int, grid: tuple[str, list[float]] | None = None) -> None:
+def _draw(rng: random.Random, kind: str, a: float, b: float, decimals: int) -> float:
+    """One value from ``[a, b]``: log-uniform or uniform, rounded to ``decimals``."""
+    if kind == "log":
+        return round(math.exp(rng.uniform(math.log(a), math.log(b))), decimals)
+    return round(rng.uniform(a, b), decimals)
+
+
+def sampled_models(n: int, seed: int) -> dict[str, list[str]]:
+    """``n`` models across :data:`SAMPLED`'s ranges, as overrides, each named by its values (and held out)."""
+    rng = random.Random(seed)
+    models = {}
+    for i in range(n):
+        values = {k: _draw(rng, *spec) for k, spec in SAMPLED.items()}
+        mu, e, d = values.values()
+        models[f"{HELD_OUT}S{i:02d}_mu{mu:g}_E{e:.3g}_d{d:g}"] = [f"{k}={v}" for k, v in values.items()]
+    return models
+
+
+def save(out: Path, n: int, seed: int, grid: tuple[str, list[float]] | None = None, sample_models: int = 0) -> None:
     """The models' configs (pickled, without their experiment) and the default plus ``n`` sampled settings; with
-    ``grid`` (a setting and its values), the default and then the default with that setting at each value."""
+    ``grid`` (a setting and its values), the default and then the default with that setting at each value; with
+    ``sample_models``, that many models drawn across the ranges (:data:`SAMPLED`) instead of :data:`MODELS`,
+    each also run at the forward ceiling (:data:`CEILING`)."""
     from slotexp.cli import compose_config
 
     out.mkdir(parents=True, exist_ok=True)
-    cfgs = {k: dataclasses.replace(compose_config(["plant=cosserat", *v]), experiment=None) for k, v in MODELS.items()}
+    models = {"default": [], **sampled_models(sample_models, seed)} if sample_models else MODELS
+    cfgs = {k: dataclasses.replace(compose_config(["plant=cosserat", *v]), experiment=None) for k, v in models.items()}
+    cases = {**CASES, **CEILING} if sample_models else CASES
+    (out / "cases.json").write_text(json.dumps(cases) + "\n")
+    if sample_models:
+        (out / "models.json").write_text(json.dumps(models, indent=1) + "\n")
     (out / "models.pkl").write_bytes(pickle.dumps(cfgs))
     c = cfgs["default"].controller
     settings = [{k: getattr(c, k) for k in SETTINGS_BOX}]
@@ -83,12 +119,7 @@ def save(out: Path, n: int, seed: int, grid: tuple[str, list[float]] | None = No
     for _ in range(n):
         s = {}
         for k, (kind, a, b, decimals) in SETTINGS_BOX.items():
-            if kind == "log":
-                s[k] = round(math.exp(rng.uniform(math.log(a), math.log(b))), decimals)
-            elif kind == "uniform":
-                s[k] = round(rng.uniform(a, b), decimals)
-            else:
-                s[k] = rng.choice([a, b])
+            s[k] = rng.choice([a, b]) if kind == "choice" else _draw(rng, kind, a, b, decimals)
         settings.append(s)
     if grid is not None:
         key, values = grid
@@ -121,14 +152,13 @@ def metrics(t, x, velocity) -> dict:
 def _task(args: tuple) -> dict:
     """One closed-loop run: a setting on a model in a case."""
     global _MODELS
-    directory, index, setting, model, case = args
+    directory, index, setting, model, case, (velocity, duration) = args
     from slotexp.bench._accuracy import Case, run_case
 
     if _MODELS is None:
         _MODELS = pickle.loads((Path(directory) / "models.pkl").read_bytes())
     cfg = _MODELS[model]
     cfg = dataclasses.replace(cfg, controller=dataclasses.replace(cfg.controller, **setting))
-    velocity, duration = CASES[case]
     start = time.perf_counter()
     try:
         trace = run_case(cfg, Case(case, "baseline", velocity, duration, 0.0))
@@ -150,11 +180,13 @@ def run(directory: Path, deadline: float, workers: int) -> None:
     settings = json.loads((directory / "settings.json").read_text())
     cfgs = pickle.loads((directory / "models.pkl").read_bytes())
     models = list(cfgs)
+    cases = _cases(directory)
     # compile or load every kernel once, here, on a short walk (the workers then load them from numba's cache)
     run_case(cfgs[models[0]], Case("warm-up", "baseline", CASES["walk"][0], 0.2, 0.0))
     print(f"kernels ready in {time.perf_counter() - start:.0f} s", flush=True)
-    tasks = iter([(str(directory), i, s, m, c) for i, s in enumerate(settings) for m in models for c in CASES])
-    total = len(settings) * len(models) * len(CASES)
+    jobs = [(str(directory), i, s, m, c, v) for i, s in enumerate(settings) for m in models for c, v in cases.items()]
+    tasks = iter(jobs)
+    total = len(settings) * len(models) * len(cases)
     done = 0
     with (
         ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool,
@@ -173,8 +205,16 @@ def run(directory: Path, deadline: float, workers: int) -> None:
     print(f"{done} of {total} runs in {time.perf_counter() - start:.0f} s", flush=True)
 
 
+def _cases(directory: Path) -> dict:
+    """The cases a saved sweep runs (name: (velocity, duration)); a sweep saved before cases.json, :data:`CASES`."""
+    path = directory / "cases.json"
+    return json.loads(path.read_text()) if path.exists() else CASES
+
+
 def checks(row: dict) -> dict[str, bool]:
-    """The issue's targets for one run."""
+    """The issue's targets for one run (the ceiling run has none: it measures what the model can make)."""
+    if row["case"] in CEILING:
+        return {}
     if "error" in row:
         return {"yaw": False, "drift" if row["case"] != "omni60" else "path": False, "speed": False}
     if row["case"] == "omni60":
@@ -226,8 +266,33 @@ def summarize(directory: Path) -> None:
     per_model["held_out"] = per_model.model.str.startswith(HELD_OUT)
     per_model["every_setting_met"] = per_model.settings_met == per_model.settings
     per_model.to_csv(directory / "per_model.csv", index=False)
+    if (directory / "models.json").exists():
+        _by_model(directory, table, marks)
     best, default = summary.iloc[0], summary[summary.default].iloc[0]
     print(f"{len(rows)} runs; best setting {best.setting}: {best.met} of {best.of} met (the default {default.met})")
+
+
+def _by_model(directory: Path, table, marks) -> None:
+    """models.csv for a sweep over sampled models: each model's values, the default setting's targets met per case,
+    and the forward speed it makes commanded beyond its reach (its ceiling). A model whose ceiling is below a
+    case's command cannot meet that case's speed target with any controller."""
+    import pandas as pd
+
+    models = json.loads((directory / "models.json").read_text())
+    rows = []
+    for name, overrides in models.items():
+        row = {"model": name, **{o.split("=")[0].rsplit(".", 1)[1]: float(o.split("=")[1]) for o in overrides}}
+        mine = table[(table.setting == 0) & (table.model == name)].set_index("case")
+        for case in CASES:
+            met = marks[(marks.setting == 0) & (marks.model == name) & (marks.case == case)]
+            row[f"{case}_met"] = int(met.met.sum())
+            row[f"{case}_speed_error"] = mine.speed_error.get(case, float("nan"))
+            row[f"{case}_yaw_drift_deg"] = mine.yaw_drift_deg.get(case, float("nan"))
+        ceiling = mine.loc["ceiling"] if "ceiling" in mine.index else None
+        command = math.hypot(*CEILING["ceiling"][0])
+        row["ceiling_mps"] = float("nan") if ceiling is None else command * (1.0 + ceiling.speed_error)
+        rows.append(row)
+    pd.DataFrame(rows).to_csv(directory / "models.csv", index=False)
 
 
 def main() -> None:
@@ -238,6 +303,7 @@ def main() -> None:
     s.add_argument("--settings", type=int, default=16, help="settings sampled besides the default")
     s.add_argument("--seed", type=int, default=36)
     s.add_argument("--grid", help="KEY=V1,V2,...: the default with one setting at each value (no sampling)")
+    s.add_argument("--sample-models", type=int, default=0, help="N models across the ranges instead of the seven")
     r = sub.add_parser("run", help="run every setting on every model and case into DIR/sweep.jsonl")
     r.add_argument("directory", type=Path)
     r.add_argument("--deadline", type=float, default=math.inf, help="s after which no new run starts")
@@ -256,7 +322,7 @@ def main() -> None:
             if key not in (*SETTINGS_BOX, *RECORDED) or grid is None:
                 keys = ", ".join((*SETTINGS_BOX, *RECORDED))
                 parser.error(f"--grid {args.grid!r}: give KEY=V1,V2 (numbers), KEY one of {keys}")
-        save(args.directory, args.settings, args.seed, grid)
+        save(args.directory, args.settings, args.seed, grid, args.sample_models)
     elif args.verb == "run":
         run(args.directory, args.deadline, args.workers)
     else:

@@ -52,3 +52,22 @@ def test_a_grid_is_the_default_then_the_default_with_one_setting_at_each_value(t
     }
     sweep.save(tmp_path, 0, 36, ("blend_hold", [1.0]))  # a held setting can be the grid's too, and is not reset
     assert [s["blend_hold"] for s in json.loads((tmp_path / "settings.json").read_text())] == [3, 1]
+
+
+def test_sampled_models_lie_in_their_ranges_are_held_out_and_add_the_ceiling_run(tmp_path: Path) -> None:
+    import json
+
+    models = sweep.sampled_models(40, 7)
+    assert models == sweep.sampled_models(40, 7) and len(models) == 40  # seeded
+    for name, overrides in models.items():
+        assert name.startswith(sweep.HELD_OUT)  # an evaluation: it ranks no setting
+        for o in overrides:
+            key, value = o.split("=")
+            _, lo, hi, _ = sweep.SAMPLED[key]
+            assert lo * 0.999 <= float(value) <= hi * 1.001, o
+    values = np.array([[float(o.split("=")[1]) for o in v] for v in models.values()])
+    assert values.std(axis=0).min() > 0  # every parameter varies
+    sweep.save(tmp_path, 0, 7, sample_models=1)
+    assert list(json.loads((tmp_path / "models.json").read_text()))[0] == "default"
+    cases = json.loads((tmp_path / "cases.json").read_text())
+    assert set(cases) == {*sweep.CASES, *sweep.CEILING} and sweep.checks({"case": "ceiling"}) == {}
