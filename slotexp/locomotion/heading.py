@@ -43,7 +43,13 @@ moves, not noise around an equilibrium), the loop flips its sign; the integral i
 so the lean reverses at once. Near its equilibrium the lean hardly moves and nothing is
 decided; with the right sign a transient makes the same line with the right slope.
 This is the textbook remedy for a control direction unknown in advance (a switching
-supervisor); no dither is needed, because a wrong sign winds the lean fast. Measured on
+supervisor); no dither is needed, because a wrong sign winds the lean fast. While whole
+cycles of two primitives alternate (``judge_sign`` false), their own yaw rates move the
+heading more than the lean does, and no cycle is a sample. Tried and dropped: trying the
+other sign when the lean sits at its limit with the error still growing (the fit sees no
+spread there). On the sampled models it changed little; on the default model's
+15 mm/s forward walk, where the right sign is too weak at 15 mm/s, its one trial turned a
+heading that recovered into one that did not. Measured on
 the low-friction model's forward walk: the sign flips 7.5 s in at a heading error of
 -1.1 deg, and the heading then holds within 1.1 deg (without: -10.2 deg in 30 s).
 """
@@ -59,7 +65,6 @@ SIGN_WINDOW_CYCLES = 12  # gait cycles of (lean, heading rate) the sign is judge
 SIGN_MIN_CYCLES = 8  # no judgement on fewer
 SIGN_T = 3.0  # standard errors the slope must stand from zero against the assumed sign
 SIGN_SPREAD = 0.4  # of max_lean_deg: how far the lean must have moved within the window
-TRIAL_CYCLES = 6  # gait cycles at the lean's limit with the heading error still growing before the other sign is tried
 
 
 def lean_pattern(leg_yaw: np.ndarray, heading: float) -> np.ndarray:
@@ -94,12 +99,6 @@ class HeadingLoop:
         self.flips: list[float] = []  # when (s of steering) the sign flipped
         self._samples: deque[tuple[float, float]] = deque(maxlen=SIGN_WINDOW_CYCLES)  # (mean lean, error rate)
         self._steps = 0  # steps steered
-        self._limit_cycles = 0  # whole gait cycles the lean has spent at its limit, the same way, in a row
-        self._limit_error = 0.0  # the heading error when that run began
-        self._limit_steps = 0  # steps of this cycle at the limit
-        self._trials = 0  # signs tried because a lean at its limit lost ground
-        self._limit_lean = 0.0  # the lean (deg) of that run
-        self._loss: dict[float, float] = {}  # per sign: how fast (deg/s) the error last grew with the lean at its limit
         self._anchor: float | None = None  # the error at this cycle's start
         self._lean_sum = 0.0
 
@@ -127,7 +126,7 @@ class HeadingLoop:
             self._anchor = None  # a cycle interrupted by standing is no sample
             return 0.0
         if not judge_sign:
-            self._anchor, self._limit_cycles = None, 0  # this cycle is no sample, and no run at the limit
+            self._anchor = None  # this cycle is no sample
         elif self.learn_sign:
             self._judge_sign(error_deg)
         e = self.error_deg
@@ -137,7 +136,6 @@ class HeadingLoop:
             self.integral = integral
         pi = float(np.clip(-(self.kp * e + self.ki * self.integral), -self.max_lean, self.max_lean))
         self.lean = self.sign * pi
-        self._limit_steps += int(abs(pi) >= self.max_lean)
         self._lean_sum += self.lean
         self._steps += 1
         return self.lean
@@ -148,35 +146,9 @@ class HeadingLoop:
             return
         if self._anchor is not None:
             cycle = self.cycle_steps * self.period
-            lean = self._lean_sum / self.cycle_steps
-            self._samples.append((lean, (error_deg - self._anchor) / cycle))
+            self._samples.append((self._lean_sum / self.cycle_steps, (error_deg - self._anchor) / cycle))
             self._fit_and_flip()
-            self._try_other_sign(lean, error_deg)
-        self._anchor, self._lean_sum, self._limit_steps = error_deg, 0.0, 0
-
-    def _try_other_sign(self, lean: float, error_deg: float) -> None:
-        """A lean held at its limit gives the fit nothing to see. If it has stayed there, the same way, for
-        ``TRIAL_CYCLES`` cycles (twice as many after each trial) and the heading error still grew, the lean is
-        turning the robot the wrong way or too weakly: try the other sign. The 2 x max_lean step this makes is
-        the excitation the fit needs, and the fit flips the sign back if the trial was wrong."""
-        at_limit = self._limit_steps == self.cycle_steps
-        same_way = self._limit_cycles == 0 or np.sign(lean) == np.sign(self._limit_lean)
-        if not (at_limit and same_way):
-            self._limit_cycles = 0
-            return
-        if self._limit_cycles == 0:
-            self._limit_error, self._limit_lean = error_deg, lean
-        self._limit_cycles += 1
-        if self._limit_cycles < TRIAL_CYCLES * 2**self._trials:
-            return
-        loss = (abs(error_deg) - abs(self._limit_error)) / (self._limit_cycles * self.cycle_steps * self.period)
-        self._loss[self.sign] = loss  # deg/s the heading error grew by, at the limit, with this sign
-        self._limit_cycles = 0
-        other = self._loss.get(-self.sign)
-        if loss > 0.0 and (other is None or other < loss):  # untried, or it lost ground more slowly
-            self.sign = -self.sign
-            self.flips.append(self._steps * self.period)
-            self._trials += 1
+        self._anchor, self._lean_sum = error_deg, 0.0
 
     def _fit_and_flip(self) -> None:
         if len(self._samples) < SIGN_MIN_CYCLES:
