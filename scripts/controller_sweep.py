@@ -250,6 +250,7 @@ def summarize(directory: Path) -> None:
             "of": marks[~held].groupby("setting").met.size(),
             "yaw_met": marks[~held & (marks.target == "yaw")].groupby("setting").met.sum(),
             "held_out_met": marks[held].groupby("setting").met.sum(),
+            "held_out_yaw_met": marks[held & (marks.target == "yaw")].groupby("setting").met.sum(),
             "held_out_of": marks[held].groupby("setting").met.size(),
         }
     )

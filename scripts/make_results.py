@@ -63,6 +63,16 @@ HELD_OUT = (
 # controller's robustness: the same settings and library on each. (The horn zero, 90-130 deg, maps horn angles to
 # tendon angles: it changes the robot's own schedules and the servo commands, not a controller that commands
 # tendon angles, so a simulated closed loop is the same at any horn zero.)
+# Two models on which a lean turns the walk the other way (the heading loop learns its sign: walking.md)
+LEAN_SIGN_MODELS = {
+    "": [],
+    "_mu0.2_E1.4e7_d10": ["robot.contact.friction=0.2", "robot.leg.youngs_modulus=1.4e7", "robot.leg.damping_per_s=10"],
+    "_mu0.37_E1.97e7_d6.9": [
+        "robot.contact.friction=0.37",
+        "robot.leg.youngs_modulus=1.969e7",
+        "robot.leg.damping_per_s=6.9",
+    ],
+}
 ROBUSTNESS_MODELS = {
     "mu0.4": ["robot.contact.friction=0.4"],
     "mu0.2_E1.4e7_d10": ["robot.contact.friction=0.2", "robot.leg.youngs_modulus=1.4e7", "robot.leg.damping_per_s=10"],
@@ -306,6 +316,23 @@ RUNS = {
         "sim.dt=1e-4",
         "experiment.search=false",
     ],
+    # The lean's turning authority (each translating primitive measured with a 10-deg lean either way) on two models
+    # where the heading loop's assumed sign was wrong, and every axis gait made glide-symmetric (not installed), on
+    # the default and on those two (docs/results/walking.md)
+    **{
+        f"library_walk{glide}{tag}": [
+            "experiment=gait_search",
+            "plant=cosserat",
+            "experiment.style=walk",
+            "sim.dt=1e-4",
+            "experiment.search=false",
+            *(["experiment.glide_symmetric=true"] if glide else []),
+            *overrides,
+        ]
+        for glide in ("", "_glide")
+        for tag, overrides in LEAN_SIGN_MODELS.items()
+        if glide or tag
+    },
     # Faster walking: the forward gait searched at other clocks and duty factors, and from the robot's own
     # forward gait (its reach-and-pull steps shaped as a primitive); none is installed (docs/results/walking.md)
     **{
