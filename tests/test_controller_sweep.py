@@ -71,3 +71,34 @@ def test_sampled_models_lie_in_their_ranges_are_held_out_and_add_the_ceiling_run
     assert list(json.loads((tmp_path / "models.json").read_text()))[0] == "default"
     cases = json.loads((tmp_path / "cases.json").read_text())
     assert set(cases) == {*sweep.CASES, *sweep.CEILING} and sweep.checks({"case": "ceiling"}) == {}
+
+
+def test_a_sampled_sweep_summarizes_each_models_targets_and_its_ceiling(tmp_path: Path) -> None:
+    """summarize on a sampled sweep: models.csv has each model's values, the default setting's targets met per
+    case, and the ceiling run's speed as the model's forward ceiling (30 mm/s commanded, 40 % short: 18 mm/s)."""
+    import json
+
+    import pandas as pd
+
+    models = {"default": [], "HELDOUT_S00": ["robot.contact.friction=0.3", "robot.leg.youngs_modulus=9000000.0"]}
+    (tmp_path / "models.json").write_text(json.dumps(models))
+    (tmp_path / "cases.json").write_text(json.dumps({**sweep.CASES, **sweep.CEILING}))
+    good = {"speed_error": 0.0, "yaw_drift_deg": 0.5, "drift_per_08m_mm": 2.0, "path_rmse_mm": 3.0}
+    rows = []
+    for model in models:
+        for case in (*sweep.CASES, *sweep.CEILING):
+            m = dict(good)
+            if model != "default" and case == "walk":
+                m["yaw_drift_deg"] = 9.0  # the sampled model's walk misses its yaw target
+            if case in sweep.CEILING:
+                m["speed_error"] = -0.4
+            rows.append({"setting": 0, "heading_kp": 10.0, "model": model, "case": case, **m})
+    (tmp_path / "sweep.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    sweep.summarize(tmp_path)
+    table = pd.read_csv(tmp_path / "models.csv").set_index("model")
+    assert table.loc["HELDOUT_S00", "friction"] == 0.3 and table.loc["HELDOUT_S00", "youngs_modulus"] == 9e6
+    assert table.loc["HELDOUT_S00", "walk_met"] == 2 and table.loc["default", "walk_met"] == 3
+    assert table.loc["HELDOUT_S00", "omni60_met"] == 3
+    np.testing.assert_allclose(table.ceiling_mps, 0.018)
+    summary = pd.read_csv(tmp_path / "summary.csv")
+    assert summary.held_out_met.iloc[0] == 8 and summary.held_out_yaw_met.iloc[0] == 2  # the one miss: a yaw
