@@ -280,6 +280,7 @@ def _by_model(directory: Path, table, marks) -> None:
     import pandas as pd
 
     models = json.loads((directory / "models.json").read_text())
+    command = math.hypot(*CEILING["ceiling"][0])
     rows = []
     for name, overrides in models.items():
         row = {"model": name, **{o.split("=")[0].rsplit(".", 1)[1]: float(o.split("=")[1]) for o in overrides}}
@@ -290,7 +291,6 @@ def _by_model(directory: Path, table, marks) -> None:
             row[f"{case}_speed_error"] = mine.speed_error.get(case, float("nan"))
             row[f"{case}_yaw_drift_deg"] = mine.yaw_drift_deg.get(case, float("nan"))
         ceiling = mine.loc["ceiling"] if "ceiling" in mine.index else None
-        command = math.hypot(*CEILING["ceiling"][0])
         row["ceiling_mps"] = float("nan") if ceiling is None else command * (1.0 + ceiling.speed_error)
         rows.append(row)
     pd.DataFrame(rows).to_csv(directory / "models.csv", index=False)

@@ -183,16 +183,6 @@ def _from_logs(job: Path, deterministic: dict[str, bool]) -> tuple[dict[str, flo
         timing["update_max_ms"] = float(w.max())
     timing.update(infeasible_steps=infeasible, infeasible_deterministic=infeasible_det)
     return timing, envelope
-    timing = {
-        "logs": logs,
-        "steps": steps,
-        "update_median_ms": float(np.median(w)),
-        "update_p99_ms": float(np.percentile(w, 99)),
-        "update_max_ms": float(w.max()),
-        "infeasible_steps": infeasible,
-        "infeasible_deterministic": infeasible_det,
-    }
-    return timing, envelope
 
 
 def summarize(multirun_dir: Path) -> pd.DataFrame:

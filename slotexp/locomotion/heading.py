@@ -49,9 +49,9 @@ heading more than the lean does, and no cycle is a sample. Tried and dropped: tr
 other sign when the lean sits at its limit with the error still growing (the fit sees no
 spread there). On the sampled models it changed little; on the default model's
 15 mm/s forward walk, where the right sign is too weak at 15 mm/s, its one trial turned a
-heading that recovered into one that did not. Measured on
-the low-friction model's forward walk: the sign flips 7.5 s in at a heading error of
--1.1 deg, and the heading then holds within 1.1 deg (without: -10.2 deg in 30 s).
+heading that recovered into one that did not. Measured on the low-friction model's
+forward walk: the sign flips 7.5 s in at a heading error of -1.1 deg, and the heading then
+holds within 1.1 deg (without: -10.2 deg in 30 s).
 """
 
 from __future__ import annotations
@@ -154,15 +154,13 @@ class HeadingLoop:
         if len(self._samples) < SIGN_MIN_CYCLES:
             return
         lean, rate = np.asarray(self._samples).T
+        if np.ptp(lean) < SIGN_SPREAD * self.max_lean:  # the lean barely moved: no evidence either way
+            return
         dl = lean - lean.mean()
         sxx = float(dl @ dl)
-        if sxx <= 0.0:
-            return
         b = float(dl @ rate) / sxx
         residual = rate - rate.mean() - b * dl
         se = np.sqrt(float(residual @ residual) / (len(rate) - 2) / sxx)
-        if np.ptp(lean) < SIGN_SPREAD * self.max_lean:  # the lean barely moved: no evidence either way
-            return
         self.authority = b
         if abs(b) > SIGN_T * se and np.sign(b) == -self.sign:
             self.sign = -self.sign  # the integral is kept: the lean reverses at once
