@@ -313,6 +313,8 @@ def main() -> None:
     m.add_argument("directory", type=Path)
     args = parser.parse_args()
     if args.verb == "save":
+        if args.sample_models < 0:
+            parser.error(f"--sample-models {args.sample_models}: give a number of models, 1 or more (0: the seven)")
         grid = None
         if args.grid:
             key, _, values = args.grid.partition("=")
