@@ -279,7 +279,11 @@ def render_page(page: Path, results: Path) -> list[Rendered]:
         if not isinstance(spec, dict) or "name" not in spec:
             raise UserError(f"{page}: a table spec has no name: give each block a name: line")
         where = f"{page}: table {spec['name']!r}"
+        if "<!-- table\n" in m["body"]:  # its end marker is missing: the body ran on over the prose to the next one
+            raise UserError(f"{where} has no '<!-- end table -->' before the next table: add it after the spec")
         out.append(Rendered(page, str(spec["name"]), m["body"], render_table(spec, results, where, timing)))
+    if text.count("<!-- table\n") != len(out):
+        raise UserError(f"{page}: its last table has no '<!-- end table -->': add it after the spec")
     return out
 
 

@@ -169,3 +169,23 @@ def test_a_bad_table_spec_is_one_line_that_names_what_to_fix(tmp_path: Path, spe
     with pytest.raises(UserError, match=None) as err:
         manual.check(_page(tmp_path, spec), results)
     assert says in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("last", [False, True])
+def test_a_table_without_its_end_marker_is_refused_before_it_swallows_the_prose_after_it(
+    tmp_path: Path, last: bool
+) -> None:
+    results = tmp_path / "results"
+    (results / "run").mkdir(parents=True)
+    (results / "run" / "metrics.json").write_text(json.dumps([{"a": 1}]))
+    spec = "name: t\nfile: run/metrics.json\ncolumns: [[a, A]]"
+    ended = f"<!-- table\n{spec}\n-->\n<!-- end table -->\n"
+    open_ = f"<!-- table\n{spec}\n-->\n"
+    body = f"# p\n\n{ended}Prose.\n\n{open_}" if last else f"# p\n\n{open_}Prose to keep.\n\n{ended}"
+    pages = tmp_path / "pages"
+    pages.mkdir()
+    (pages / "p.md").write_text(body)
+    with pytest.raises(UserError, match="end table") as err:
+        manual.write(pages, results)
+    assert "\n" not in str(err.value)
+    assert (pages / "p.md").read_text() == body  # nothing rewritten
