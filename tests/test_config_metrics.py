@@ -81,3 +81,25 @@ def test_each_controller_declares_its_gait_cycle_and_table1_averages_over_it():
     assert forward.mpc.rate_hz == 50.0 and gait_period_steps(forward) == 2 * 21
     with pytest.raises(ConfigError, match="controller=paper has none.*gait_mpc, open_loop, rigid, schedule"):
         load(*args, "controller=paper")
+
+
+def test_final_cost_parts_sum_to_table1s_final_cost_and_name_the_error_that_keeps_a_run_from_settling():
+    from types import SimpleNamespace
+
+    from slotexp.jobs.perturb import final_cost_parts
+    from slotexp.metrics import cycle_mean_cost
+
+    cfg = load("experiment=perturb", "experiment.cost_average=gait_cycle", "plant=cosserat")
+    t = np.arange(300) / 30.0
+    x, ref = np.zeros((t.size, 12)), np.zeros((t.size, 12))
+    x[:, 5] = 0.003 + 0.01 * np.sin(2 * np.pi * 1.875 * t)  # a 3 mm height offset under the gait's 10 mm heave
+    x[:, 0] = np.radians(1.0)  # and 1 deg of roll
+    run = SimpleNamespace(name="baseline", x=x, x_ref=ref)
+    out = final_cost_parts([run], cfg)
+    parts = out["final_cost_parts"]["baseline"]
+    q = np.asarray(cfg.mpc.q_diag)
+    assert sum(parts.values()) == pytest.approx(cycle_mean_cost(x, ref, q, 16)[-1])
+    assert parts["z"] == pytest.approx(1000 * q[5] * 0.003**2, rel=1e-6)  # a whole cycle averages the heave out
+    assert parts["roll"] == pytest.approx(1000 * q[0] * np.radians(1.0) ** 2)
+    share = parts["z"] / sum(parts.values())
+    assert out["final_cost_largest"]["baseline"] == f"z ({share:.0%})"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -10,7 +11,8 @@ import numpy as np
 from ..atomic import write_csv, write_json, write_text
 from ..config import SlotConfig, check_run_length, check_scenario, choice_field, num_field
 from ..errors import ConfigError
-from ..metrics import cycle_mean_cost
+from ..metrics import cycle_mean_cost, cycle_mean_cost_parts
+from ..plants import STATE_NAMES
 from ..runlog import RunData, find_logs, load_run
 from ..tables import table1, to_markdown
 from . import EXPERIMENTS, Experiment
@@ -71,6 +73,20 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
     report(out_dir, cfg)
 
 
+def final_cost_parts(runs: Sequence[RunData], cfg: SlotConfig) -> dict:
+    """Each scenario's final cost split by state (as Table I weighs it) and its largest term with its share:
+    what keeps a run that does not settle from settling."""
+    window = gait_period_steps(cfg) if cfg.experiment.cost_average == "gait_cycle" else 1
+    q = np.asarray(cfg.mpc.q_diag, dtype=float)
+    parts, largest = {}, {}
+    for run in runs:
+        final = cycle_mean_cost_parts(run.x, run.x_ref, q, window)[-1]
+        parts[run.name] = {name: float(c) for name, c in zip(STATE_NAMES, final, strict=True)}
+        k = int(np.argmax(final))
+        largest[run.name] = f"{STATE_NAMES[k]} ({final[k] / max(final.sum(), 1e-300):.0%})"
+    return {"final_cost_parts": parts, "final_cost_largest": largest}
+
+
 def report(out_dir: Path, cfg: SlotConfig) -> list[RunData]:
     """Table I and Figs. 7-8 from the logs in ``out_dir/logs`` alone."""
     from ..figures.perturb import plot_costs, plot_dcm
@@ -114,7 +130,12 @@ def report(out_dir: Path, cfg: SlotConfig) -> list[RunData]:
         }
         for r in runs
     }
-    result = {"table1": table.to_dict(orient="records"), "cost_average": exp.cost_average, "solver_timing": timing}
+    result = {
+        "table1": table.to_dict(orient="records"),
+        "cost_average": exp.cost_average,
+        **final_cost_parts(runs, cfg),
+        "solver_timing": timing,
+    }
     if exp.cost_average != "step":
         result["table1_step_cost"] = step_table.to_dict(orient="records")
     write_json(out_dir / "metrics.json", result)
