@@ -76,7 +76,7 @@ SETTINGS_BOX = {  # the heading loop's settings: sampled log-uniformly, uniforml
 }
 # held, not sampled, but written into every setting (results/controller_sweep ran with attitude_from_plan true and
 # blend_hold 1)
-RECORDED = ("attitude_from_plan", "blend_hold", "heading_learn_sign")
+RECORDED = ("attitude_from_plan", "blend_hold", "heading_learn_sign", "height_trim")
 _MODELS: dict | None = None
 
 
@@ -130,9 +130,10 @@ def save(out: Path, n: int, seed: int, grid: tuple[str, list[float]] | None = No
     print(f"wrote {out}/models.pkl ({len(cfgs)} models) and settings.json ({len(settings)} settings, seed {seed})")
 
 
-def metrics(t, x, velocity) -> dict:
+def metrics(t, x, velocity, height: float) -> dict:
     """The issue's measures of one run: :func:`slotexp.metrics.tracking` (as `experiment=simulate` measures it)
-    against the path the velocity asks for from where the robot starts, and the largest roll."""
+    against the path the velocity asks for from where the robot starts, the largest roll, and the mean height
+    over the run's second half against the reference ``height`` (m)."""
     import numpy as np
 
     from slotexp.metrics import tracking
@@ -146,6 +147,7 @@ def metrics(t, x, velocity) -> dict:
         "drift_per_08m_mm": 800.0 * m["lateral_drift_per_m"],
         "path_rmse_mm": 1000.0 * m["path_rmse_m"],
         "roll_max_deg": float(np.degrees(np.max(np.abs(x[:, 0])))),
+        "height_offset_mm": 1000.0 * (float(np.mean(x[len(x) // 2 :, 5])) - height),
     }
 
 
@@ -162,7 +164,7 @@ def _task(args: tuple) -> dict:
     start = time.perf_counter()
     try:
         trace = run_case(cfg, Case(case, "baseline", velocity, duration, 0.0))
-        out = metrics(trace.t, trace.x, velocity)
+        out = metrics(trace.t, trace.x, velocity, cfg.gait.height)
     except Exception as e:  # a run that fails is a result too
         out = {"error": f"{type(e).__name__}: {e}"}
     return {"setting": index, **setting, "model": model, "case": case, "wall_s": time.perf_counter() - start, **out}
@@ -232,7 +234,8 @@ def checks(row: dict) -> dict[str, bool]:
 
 def summarize(directory: Path) -> None:
     """summary.csv: per setting, the targets met on the models that rank (and, apart, on the held-out ones);
-    per_model.csv: per model, case and target, how many settings meet it, and the default's value."""
+    per_model.csv: per model, case and target, how many settings meet it, and the default's value; runs.csv:
+    every run's measures, one row each."""
     import pandas as pd
 
     rows = [json.loads(line) for line in (directory / "sweep.jsonl").read_text().splitlines() if line.strip()]
@@ -255,6 +258,7 @@ def summarize(directory: Path) -> None:
         }
     )
     table = pd.DataFrame(rows)
+    table.sort_values(["model", "case", "setting"]).to_csv(directory / "runs.csv", index=False)
     settings = table.groupby("setting")[[k for k in (*SETTINGS_BOX, *RECORDED) if k in table]].first()
     summary = by_setting.join(settings).reset_index().sort_values(["met", "yaw_met"], ascending=False)
     summary["default"] = summary.setting == 0

@@ -272,6 +272,14 @@ RUNS = {
         "experiment.cost_average=gait_cycle",
     ],
     "perturb_cosserat_standstill": ["experiment=perturb", "plant=cosserat", "gait.velocity=[0,0]"],
+    # Table I walking with the reference height held while walking too (controller.height_trim; off by default)
+    "perturb_cosserat_height": [
+        "experiment=perturb",
+        "plant=cosserat",
+        f"gait.velocity=[{TABLE1},0]",
+        "experiment.cost_average=gait_cycle",
+        "controller.height_trim=0.1",
+    ],
     # The MPC's attitude correction in the tendon offsets too (controller.attitude_from_plan=true, the default until
     # it was measured): Table I walking, old beside new on the walking page.
     "perturb_cosserat_plan_attitude": [
@@ -392,6 +400,18 @@ RUNS = {
             ],
             "perturb": ["experiment=perturb", f"gait.velocity=[{TABLE1},0]", "experiment.cost_average=gait_cycle"],
         }.items()
+    },
+    # ... and Table I walking there with the reference height held while walking too (controller.height_trim)
+    **{
+        f"robust_{model}_perturb_height": [
+            "plant=cosserat",
+            *overrides,
+            "experiment=perturb",
+            f"gait.velocity=[{TABLE1},0]",
+            "experiment.cost_average=gait_cycle",
+            "controller.height_trim=0.1",
+        ]
+        for model, overrides in ROBUSTNESS_MODELS.items()
     },
     # The physical robot's own gaits (shared/data) replayed on the soft plant, beside the robot; and the same
     # replays with a model option each (a first look, nothing fitted; docs/results/gaits.md).

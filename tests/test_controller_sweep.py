@@ -21,13 +21,15 @@ def _track(velocity: tuple[float, float], scale: float, sway: float, yaw_end: fl
     x = np.zeros((t.size, 12))
     x[:, 3:5] = np.outer(scale * t, v) + np.outer(sway * np.sin(t), [-d[1], d[0]])
     x[:, 2] = np.radians(yaw_end) * t / t[-1]
+    x[:, 5] = 0.04 + 0.002 * (t >= t[-1] / 2)  # 2 mm above a 40 mm reference over the second half
     return t, x
 
 
 def test_a_track_12_percent_fast_and_swaying_is_measured_so_and_fails_only_the_targets_it_misses() -> None:
     t, x = _track((0.0, 0.02), 1.12, 0.004, 1.0)  # lateral at 20 mm/s: 12 % fast, 4 mm of sway, 1 deg of yaw
-    m = sweep.metrics(t, x, (0.0, 0.02))
+    m = sweep.metrics(t, x, (0.0, 0.02), 0.04)
     assert abs(m["speed_error"] - 0.12) < 0.005
+    assert abs(m["height_offset_mm"] - 2.0) < 1e-6
     assert abs(m["yaw_drift_deg"] - 1.0) < 1e-9
     assert abs(m["drift_per_08m_mm"] - 4.0) < 0.05  # the sway's amplitude, over a full 0.8 m
     assert m["path_rmse_mm"] > 0.12 * 0.02 * 1000 * 40 / np.sqrt(3) * 0.9  # behind or ahead grows with time
@@ -102,3 +104,6 @@ def test_a_sampled_sweep_summarizes_each_models_targets_and_its_ceiling(tmp_path
     np.testing.assert_allclose(table.ceiling_mps, 0.018)
     summary = pd.read_csv(tmp_path / "summary.csv")
     assert summary.held_out_met.iloc[0] == 8 and summary.held_out_yaw_met.iloc[0] == 2  # the one miss: a yaw
+    runs = pd.read_csv(tmp_path / "runs.csv")  # every run, one row each, as it was measured
+    assert len(runs) == len(rows) and set(runs.case) == {*sweep.CASES, *sweep.CEILING}
+    assert runs.set_index(["model", "case"]).loc[("HELDOUT_S00", "walk"), "yaw_drift_deg"] == 9.0

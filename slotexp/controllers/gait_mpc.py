@@ -73,7 +73,11 @@ asks for is used where the legs can give it:
   0.98 % of its maximum at 0.1/s (0.47 % at 0.05/s, 0.76 % at 0.2/s).
   Standing it also holds the stance's height (every leg alike); walking, the gait
   keeps the posture it was searched at (holding the height made the 20 mm/s walk
-  fall 21 mm behind in 25 s). Before the heading loop it was off: the levelled
+  fall 21 mm behind in 25 s), unless ``height_trim`` (1/s) is set. On a model whose
+  legs are stiffer or softer than the leg eq. 11's slope was fitted to, the plan's
+  height correction is proportional and leaves the walk 10-18 mm off its reference
+  height, which Table I charges; the trim removes that, and on the models whose
+  gaits walk at another posture costs them speed (walking.md). Before the heading loop it was off: the levelled
   forward gait yawed 0.4 deg/s with nothing to feed yaw back. With both, Table I
   walking at 20 mm/s settles in all six deterministic scenarios.
 - **Standing** (a reference that does not travel): the velocity command stays at
@@ -144,6 +148,8 @@ class GaitMpcConfig(GaitControllerConfig):
     # rate (1/s) of the integral trim that levels the stance: each leg's tendon moves by the corner height the
     # measured roll and pitch put it off by; 0 (default) turns it off
     attitude_trim: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s")
+    # rate (1/s) at which the trim also holds the reference height while walking (standing, attitude_trim's); 0: off
+    height_trim: float = num_field(0.0, lo=0.0, hi=10.0, unit="1/s")
     # heading feedback (slotexp/locomotion/heading.py): the lean, in degrees of tendon on the legs left of the
     # direction of travel (and minus that on the right), is a PI function of the cycle-mean heading error
     heading_kp: float = num_field(10.0, lo=0.0, hi=100.0, unit="deg of tendon per deg")
@@ -213,10 +219,11 @@ class GaitMpcController(GaitController):
         self.cycle_offsets.append(offsets - at_once)
         corners = self.robot.corners_body
         off_level_mm = 1000.0 * (x[0] * corners[:, 1] - x[1] * corners[:, 0])  # roll lifts +y, pitch lowers +x
-        if not self.walking:  # standing, the stance's height too; a walking gait keeps the posture it was searched at
-            off_level_mm += 1000.0 * (x[5] - self.cfg.gait.height)
+        # the stance's height too: standing at the trim's rate, walking at height_trim's (the docstring)
+        height_rate = ctrl.height_trim if self.walking else ctrl.attitude_trim
+        off_mm = ctrl.attitude_trim * off_level_mm + height_rate * 1000.0 * (x[5] - self.cfg.gait.height)
         lean, pattern = self._lean(x)
-        step = -ctrl.attitude_trim * self.period * off_level_mm / MM_PER_DEG
+        step = -self.period * off_mm / MM_PER_DEG
         if pattern.any():  # the trim levels the body across the lean, never against it (they would wind up)
             step -= (step @ pattern) / (pattern @ pattern) * pattern
         self.trim = np.clip(self.trim + step, -MAX_TRIM_DEG, MAX_TRIM_DEG)
