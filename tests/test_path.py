@@ -101,6 +101,7 @@ def test_a_blend_of_two_headings_holds_a_straight_line_over_many_cycles(plant: s
     sink = _Path()
     summary = run_closed_loop(cfg, cfg.scenarios["baseline"], seconds, sink)
     assert summary.infeasible_steps == 0
+    assert 0.0 < summary.plant_wall_s < summary.wall_time_s  # the plant's part of the wall time, timed apart
     error = np.linalg.norm(np.asarray(sink.ref) - np.asarray(sink.p), axis=1)
     cycle = np.convolve(error, np.ones(WINDOW) / WINDOW, mode="valid")
     half = len(cycle) // 2

@@ -250,6 +250,10 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
                 "real_time_factor": summary.sim_time_s / wall,
                 "warmup_s": warmup,
                 "mpc_share": float(mpc.sum() / wall),
+                # the plant's share; the rest is the controller's Python, the MPC and the reference, which bound
+                # the real-time factor however cheap a plant step becomes
+                "plant_share": summary.plant_wall_s / wall,
+                "controller_ms_per_simulated_s": 1e3 * (wall - summary.plant_wall_s) / summary.sim_time_s,
                 "mpc_median_us": float(np.median(mpc)) * 1e6,
                 "plant_dt_s": cfg.sim.dt,
                 "integrator": cfg.plant.integrator,
