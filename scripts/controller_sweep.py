@@ -234,8 +234,8 @@ def checks(row: dict) -> dict[str, bool]:
 
 def summarize(directory: Path) -> None:
     """summary.csv: per setting, the targets met on the models that rank (and, apart, on the held-out ones);
-    per_model.csv: per model, case and target, how many settings meet it, and the default's value; runs.csv:
-    every run's measures, one row each."""
+    per_model.csv: per model, case and target, how many settings meet it, and the default's value; by_case.csv:
+    per setting, case and target, how many models meet it; runs.csv: every run's measures, one row each."""
     import pandas as pd
 
     rows = [json.loads(line) for line in (directory / "sweep.jsonl").read_text().splitlines() if line.strip()]
@@ -271,6 +271,8 @@ def summarize(directory: Path) -> None:
     per_model["held_out"] = per_model.model.str.startswith(HELD_OUT)
     per_model["every_setting_met"] = per_model.settings_met == per_model.settings
     per_model.to_csv(directory / "per_model.csv", index=False)
+    by_case = marks.groupby(["setting", "case", "target"]).met.agg(models_met="sum", models="size").reset_index()
+    by_case.to_csv(directory / "by_case.csv", index=False)
     if (directory / "models.json").exists():
         _by_model(directory, table, marks)
     best, default = summary.iloc[0], summary[summary.default].iloc[0]

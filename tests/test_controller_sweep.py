@@ -104,6 +104,9 @@ def test_a_sampled_sweep_summarizes_each_models_targets_and_its_ceiling(tmp_path
     np.testing.assert_allclose(table.ceiling_mps, 0.018)
     summary = pd.read_csv(tmp_path / "summary.csv")
     assert summary.held_out_met.iloc[0] == 8 and summary.held_out_yaw_met.iloc[0] == 2  # the one miss: a yaw
+    by_case = pd.read_csv(tmp_path / "by_case.csv").set_index(["case", "target"])
+    assert by_case.loc[("walk", "yaw"), "models_met"] == 1 and by_case.loc[("walk", "yaw"), "models"] == 2
+    assert by_case.loc[("omni60", "path"), "models_met"] == 2
     runs = pd.read_csv(tmp_path / "runs.csv")  # every run, one row each, as it was measured
     assert len(runs) == len(rows) and set(runs.case) == {*sweep.CASES, *sweep.CEILING}
     assert runs.set_index(["model", "case"]).loc[("HELDOUT_S00", "walk"), "yaw_drift_deg"] == 9.0
