@@ -216,7 +216,9 @@ def stance(
 ) -> np.ndarray:
     """Stance flags (len(psi), 4): legs whose tendon is at or above its mean over the cycle (pressing
     harder than on average, so they tend to stick); a leg that hardly moves (< 1 deg) is always in stance."""
-    cycle = mix(style, parts, np.arange(samples) / samples, top)
+    # the cycle's samples and the asked phases in one mix (its cost is mostly per call, not per phase)
+    both = mix(style, parts, np.concatenate([np.arange(samples) / samples, np.atleast_1d(psi)]), top)
+    cycle = both[:samples]
     mean = cycle.mean(axis=0)
     still = np.ptp(cycle, axis=0) < 1.0
-    return (mix(style, parts, np.atleast_1d(psi), top) >= mean) | still
+    return (both[samples:] >= mean) | still
