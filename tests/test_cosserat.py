@@ -355,8 +355,10 @@ def test_the_accuracy_comparison_measures_speed_and_differences_analytically():
     other = Trace(t, x.copy(), np.full((300, 4), 5.5), run.step_wall_s)
     other.x[:, 5] += 0.001  # 1 mm higher
     other.x[:, 1] += np.radians(0.5)
+    other.x[:, 2] += 2.0 * np.pi - np.radians(0.25 * t)  # yaw drifting 0.25 deg/s, a whole turn apart
     diff = compare(other, run)
     assert diff["max_dz_mm"] == pytest.approx(1.0) and diff["max_dattitude_deg"] == pytest.approx(0.5)
+    assert diff["max_dyaw_deg"] == pytest.approx(0.25 * t[-1])
     assert diff["rms_dnormal_n"] == pytest.approx(0.5) and diff["max_dxy_mm"] == 0.0
 
 
@@ -531,3 +533,15 @@ def test_raising_the_legs_mount_lowers_the_torso_by_as_much_and_leaves_the_legs_
     assert np.allclose(b.feet_body - b.corners_body, a.feet_body - a.corners_body, atol=1e-12)
     assert high.torso[2] == pytest.approx(low.torso[2] - rise, abs=1e-9)
     assert np.allclose(high.pos, low.pos, atol=1e-4)  # within 0.1 mm: the settling (finite iterations) differs
+
+
+def test_an_accuracy_case_runs_with_its_own_controller_settings_and_leaves_the_config_alone(monkeypatch):
+    import slotexp.bench._accuracy as acc
+
+    seen = {}
+    monkeypatch.setattr(acc, "run_closed_loop", lambda cfg, *a, **k: seen.setdefault("cfg", cfg))
+    cfg = load("plant=cosserat")
+    case = next(c for c in acc.CASES if c.name == "walk, heading loop off")
+    acc.run_case(cfg, case)
+    assert seen["cfg"].controller.max_lean_deg == 0.0 and cfg.controller.max_lean_deg == 15.0
+    assert seen["cfg"].gait.velocity == [0.02, 0.0]
