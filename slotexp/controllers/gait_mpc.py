@@ -219,11 +219,12 @@ class GaitMpcController(GaitController):
         self.cycle_offsets.append(offsets - at_once)
         corners = self.robot.corners_body
         off_level_mm = 1000.0 * (x[0] * corners[:, 1] - x[1] * corners[:, 0])  # roll lifts +y, pitch lowers +x
-        # the stance's height too: standing at the trim's rate, walking at height_trim's (the docstring)
-        height_rate = ctrl.height_trim if self.walking else ctrl.attitude_trim
-        off_mm = ctrl.attitude_trim * off_level_mm + height_rate * 1000.0 * (x[5] - self.cfg.gait.height)
+        if not self.walking:  # standing, the stance's height too; walking, only at height_trim's rate (docstring)
+            off_level_mm += 1000.0 * (x[5] - self.cfg.gait.height)
         lean, pattern = self._lean(x)
-        step = -self.period * off_mm / MM_PER_DEG
+        step = -ctrl.attitude_trim * self.period * off_level_mm / MM_PER_DEG
+        if self.walking and ctrl.height_trim > 0.0:
+            step -= ctrl.height_trim * self.period * 1000.0 * (x[5] - self.cfg.gait.height) / MM_PER_DEG
         if pattern.any():  # the trim levels the body across the lean, never against it (they would wind up)
             step -= (step @ pattern) / (pattern @ pattern) * pattern
         self.trim = np.clip(self.trim + step, -MAX_TRIM_DEG, MAX_TRIM_DEG)
