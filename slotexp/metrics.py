@@ -40,17 +40,21 @@ def cycle_mean_cost(x: np.ndarray, x_ref: np.ndarray, q_diag: np.ndarray, window
     the motion is from the reference, not the gait's own swing. ``window`` = 1 is the
     stage cost. The average is causal (the steps so far, at most ``window``).
     """
-    return cycle_mean_cost_parts(x, x_ref, q_diag, window).sum(axis=-1)
+    return COST_SCALE * np.sum(np.asarray(q_diag) * _cycle_mean_error(x, x_ref, window) ** 2, axis=-1)
 
 
 def cycle_mean_cost_parts(x: np.ndarray, x_ref: np.ndarray, q_diag: np.ndarray, window: int) -> np.ndarray:
     """Each state's term of :func:`cycle_mean_cost` (n, 12): which error keeps a run from settling."""
+    return COST_SCALE * np.asarray(q_diag) * _cycle_mean_error(x, x_ref, window) ** 2
+
+
+def _cycle_mean_error(x: np.ndarray, x_ref: np.ndarray, window: int) -> np.ndarray:
+    """The state error averaged over the last ``window`` steps, causally (n, 12)."""
     e = state_error(x, x_ref)
     csum = np.cumsum(np.vstack([np.zeros((1, e.shape[1])), e]), axis=0)
     k = np.arange(1, e.shape[0] + 1)
     lo = np.maximum(0, k - int(window))
-    mean = (csum[k] - csum[lo]) / (k - lo)[:, None]
-    return COST_SCALE * np.asarray(q_diag) * mean**2
+    return (csum[k] - csum[lo]) / (k - lo)[:, None]
 
 
 def settle_time(t: np.ndarray, cost: np.ndarray, fraction: float, hold: float = 1.0) -> float:
