@@ -63,16 +63,6 @@ HELD_OUT = (
 # controller's robustness: the same settings and library on each. (The horn zero, 90-130 deg, maps horn angles to
 # tendon angles: it changes the robot's own schedules and the servo commands, not a controller that commands
 # tendon angles, so a simulated closed loop is the same at any horn zero.)
-# Two models on which a lean turns the walk the other way (the heading loop learns its sign: walking.md)
-LEAN_SIGN_MODELS = {
-    "": [],
-    "_mu0.2_E1.4e7_d10": ["robot.contact.friction=0.2", "robot.leg.youngs_modulus=1.4e7", "robot.leg.damping_per_s=10"],
-    "_mu0.37_E1.97e7_d6.9": [
-        "robot.contact.friction=0.37",
-        "robot.leg.youngs_modulus=1.969e7",
-        "robot.leg.damping_per_s=6.9",
-    ],
-}
 ROBUSTNESS_MODELS = {
     "mu0.4": ["robot.contact.friction=0.4"],
     "mu0.2_E1.4e7_d10": ["robot.contact.friction=0.2", "robot.leg.youngs_modulus=1.4e7", "robot.leg.damping_per_s=10"],
@@ -81,6 +71,16 @@ ROBUSTNESS_MODELS = {
         "robot.contact.friction=0.8",
         "robot.leg.youngs_modulus=7e6",
         "robot.leg.damping_per_s=50",
+    ],
+}
+# Two models on which a lean turns the walk the other way (the heading loop learns its sign: walking.md)
+LEAN_SIGN_MODELS = {
+    "": [],
+    "_mu0.2_E1.4e7_d10": ROBUSTNESS_MODELS["mu0.2_E1.4e7_d10"],
+    "_mu0.37_E1.97e7_d6.9": [
+        "robot.contact.friction=0.37",
+        "robot.leg.youngs_modulus=1.969e7",
+        "robot.leg.damping_per_s=6.9",
     ],
 }
 LIBRARY = ROOT / "conf" / "library" / "default.yaml"

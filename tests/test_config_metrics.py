@@ -95,9 +95,9 @@ def test_final_cost_parts_sum_to_table1s_final_cost_and_name_the_error_that_keep
     x[:, 5] = 0.003 + 0.01 * np.sin(2 * np.pi * 1.875 * t)  # a 3 mm height offset under the gait's 10 mm heave
     x[:, 0] = np.radians(1.0)  # and 1 deg of roll
     run = SimpleNamespace(name="baseline", x=x, x_ref=ref)
-    out = final_cost_parts([run], cfg)
-    parts = out["final_cost_parts"]["baseline"]
     q = np.asarray(cfg.mpc.q_diag)
+    out = final_cost_parts([run], q, 16)  # the walk's gait cycle at the MPC's 30 Hz
+    parts = out["final_cost_parts"]["baseline"]
     assert sum(parts.values()) == pytest.approx(cycle_mean_cost(x, ref, q, 16)[-1])
     assert parts["z"] == pytest.approx(1000 * q[5] * 0.003**2, rel=1e-6)  # a whole cycle averages the heave out
     assert parts["roll"] == pytest.approx(1000 * q[0] * np.radians(1.0) ** 2)

@@ -71,8 +71,9 @@ class GaitSearchExperiment:
     search: bool = True
     # every gait along a body axis (forward, backward, sideways) made its own mirror image half a cycle later before
     # it is measured (Primitive.glide_symmetric): it then turns and drifts the body neither way on any symmetric
-    # model. Off by default: across 24 sampled models the lateral walk met 7 more targets and omni60 4-8 fewer
+    # model. Off by default: across 32 sampled models the lateral walk met 10 more targets and omni60 7 fewer
     # (its blend with the asymmetric 45-deg gait), and the forward walk lost its turn back from 20 deg off
+    # (results/controller_sweep_sampled_glide)
     glide_symmetric: bool = False
     seed: int = num_field(1, lo=0, unit="")
     parallel: ParallelConfig = field(default_factory=ParallelConfig)

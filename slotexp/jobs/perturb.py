@@ -73,11 +73,9 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
     report(out_dir, cfg)
 
 
-def final_cost_parts(runs: Sequence[RunData], cfg: SlotConfig) -> dict:
-    """Each scenario's final cost split by state (as Table I weighs it) and its largest term with its share:
-    what keeps a run that does not settle from settling."""
-    window = gait_period_steps(cfg) if cfg.experiment.cost_average == "gait_cycle" else 1
-    q = np.asarray(cfg.mpc.q_diag, dtype=float)
+def final_cost_parts(runs: Sequence[RunData], q: np.ndarray, window: int) -> dict:
+    """Each scenario's final cost split by state (as Table I weighs it, ``q`` over ``window`` steps) and its
+    largest term with its share: what keeps a run that does not settle from settling."""
     parts, largest = {}, {}
     for run in runs:
         final = cycle_mean_cost_parts(run.x, run.x_ref, q, window)[-1]
@@ -97,9 +95,9 @@ def report(out_dir: Path, cfg: SlotConfig) -> list[RunData]:
     runs = [load_run(p) for p in find_logs(out_dir)]
     runs.sort(key=lambda r: order.get(r.name, len(order)))
     step_table = table1(runs, settle_fraction, settle_hold_s)
+    q = np.asarray(cfg.mpc.q_diag, dtype=float)
+    window = gait_period_steps(cfg) if exp.cost_average == "gait_cycle" else 1  # 1: each step's own cost
     if exp.cost_average == "gait_cycle":
-        window = gait_period_steps(cfg)
-        q = np.asarray(cfg.mpc.q_diag, dtype=float)
         for run in runs:
             run.cost = cycle_mean_cost(run.x, run.x_ref, q, window)
     table = table1(runs, settle_fraction, settle_hold_s)
@@ -133,7 +131,7 @@ def report(out_dir: Path, cfg: SlotConfig) -> list[RunData]:
     result = {
         "table1": table.to_dict(orient="records"),
         "cost_average": exp.cost_average,
-        **final_cost_parts(runs, cfg),
+        **final_cost_parts(runs, q, window),
         "solver_timing": timing,
     }
     if exp.cost_average != "step":
