@@ -678,10 +678,34 @@ CEILING_SWEEP = [
     "experiment.duration=30",
     "experiment.gif=false",
 ]
+
+
+def fit_scan(key: str, factors: tuple[float, ...]):
+    """The identified model's forward gait (results/identify_robot/fit.yaml) over 24 s, with its setting ``key``
+    swept over ``factors`` of the fit and the others at the fit: where between the issue's 10 % either way the
+    gait falls off, and which feet anchor on either side (docs/results/gaits.md)."""
+
+    def args() -> list[str]:
+        import yaml
+
+        fit = yaml.safe_load((ROOT / "results" / "identify_robot" / "fit.yaml").read_text())["overrides"]
+        values = [f"{k}=[{','.join(f'{x:g}' for x in v)}]" if isinstance(v, list) else f"{k}={v:g}"
+                  for k, v in fit.items() if k != key]  # fmt: skip
+        swept = ",".join(f"{fit[key] * f:.6g}" for f in factors)
+        return ["experiment=replay", "plant=cosserat", "experiment.schedules=[forward]", "experiment.gif=false",
+                "experiment.duration=24", *values, f"{key}={swept}", "hydra.sweep.subdir=${hydra.job.num}"]  # fmt: skip
+
+    return args
+
+
 SWEEPS = {
     "headings_cosserat": HEADING_SWEEP,
     "ceiling_cosserat": CEILING_SWEEP,
     "headings_cosserat_plan_attitude": [*HEADING_SWEEP, "controller.attitude_from_plan=true"],
+    "replay_fit_youngs_scan": fit_scan(
+        "robot.leg.youngs_modulus", (0.9, 0.95, 0.98, 1.0, 1.01, 1.02, 1.03, 1.04, 1.05, 1.07, 1.1)
+    ),
+    "replay_fit_friction_scan": fit_scan("robot.contact.friction", (0.8, 0.9, 0.95, 1.0, 1.05, 1.1, 1.25)),
 }
 
 
@@ -722,13 +746,14 @@ def main(names: list[str]) -> None:
         shutil.rmtree(run_dir, ignore_errors=True)
         start = time.perf_counter()
         args = DERIVED[name]() if name in DERIVED else {**RUNS, **SWEEPS, **BENCHES}[name]
+        args = args() if callable(args) else args  # a sweep over an earlier run's fit
         verb = "slot bench" if name in BENCHES else "slot run -m" if name in SWEEPS else "slot run"
         if name in BENCHES:
             print(f"== {name}: slot bench {' '.join(BENCHES[name])}", flush=True)
             subprocess.run([SLOT, "bench", *BENCHES[name], "--out", str(run_dir)], cwd=ROOT, check=True)
         elif name in SWEEPS:
-            print(f"== {name}: slot run -m {' '.join(SWEEPS[name])}", flush=True)
-            subprocess.run([SLOT, "run", "-m", *SWEEPS[name], f"hydra.sweep.dir={run_dir}"], cwd=ROOT, check=True)
+            print(f"== {name}: slot run -m {' '.join(args)}", flush=True)
+            subprocess.run([SLOT, "run", "-m", *args, f"hydra.sweep.dir={run_dir}"], cwd=ROOT, check=True)
             subprocess.run([SLOT, "summarize", str(run_dir)], cwd=ROOT, check=True)
         else:
             print(f"== {name}: slot run {' '.join(args)}", flush=True)

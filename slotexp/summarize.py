@@ -107,8 +107,19 @@ def _metrics(job: Path) -> dict[str, float]:
             raise UserError(f"{path}: not readable JSON ({exc.__class__.__name__}); rerun the job") from exc
         if not isinstance(data, dict):
             raise UserError(f"{path}: expected a JSON object of metrics, found a {type(data).__name__}")
-        return {k: float(v) for k, v in data.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+        return _numbers(data)
     return {}
+
+
+def _numbers(data: dict, prefix: str = "") -> dict[str, float]:
+    """The numbers of a metrics object, a nested object's as ``outer.inner`` (a replay's ``forward.distance...``)."""
+    out: dict[str, float] = {}
+    for k, v in data.items():
+        if isinstance(v, dict):
+            out.update(_numbers(v, f"{prefix}{k}."))
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            out[f"{prefix}{k}"] = float(v)
+    return out
 
 
 def _command(velocity: str) -> dict[str, float]:

@@ -195,6 +195,25 @@ def test_foot_strokes_measure_each_feet_travel_and_the_distance_they_would_give_
     assert along["stroke_ceiling_mm"] == pytest.approx(12.0 + 0.0 * 8.0 + 0.0 * 4.0, abs=1e-9)
 
 
+def test_foot_slides_are_each_feet_path_over_the_ground_per_cycle() -> None:
+    """A foot that anchors travels nothing; one that circles its radius travels its circumference per cycle; one
+    that goes out and back along a line travels twice the line; only the measured cycles count (a foot that slid
+    before them and then held travels nothing)."""
+    from slotexp.locomotion.schedules import foot_slides
+
+    cycle, n = 0.84, 840
+    t = np.arange(8 * n + 1) * (cycle / n)
+    phase = 2 * np.pi * t / cycle
+    feet = np.zeros((len(t), 4, 2))
+    feet[:, 1] = 0.01 * np.column_stack([np.cos(phase), np.sin(phase)])  # a circle of 10 mm radius
+    feet[:, 2, 0] = 0.004 * (1 - np.cos(phase))  # out 8 mm and back along x
+    feet[:, 3, 0] = np.where(t < 2.0, t * 0.01, 0.02)  # slid before the measured cycles, then held
+    out = foot_slides(t, feet, cycle, 3.0)
+    assert out["slide_0_mm"] == 0.0 and out["slide_3_mm"] == 0.0
+    assert out["slide_1_mm"] == pytest.approx(2 * np.pi * 10.0, rel=1e-4)  # the chords of 840 samples a cycle
+    assert out["slide_2_mm"] == pytest.approx(16.0, rel=1e-9)
+
+
 def test_a_users_own_schedule_in_their_config_directory_plays_like_a_shipped_one(tmp_path: Path):
     # docs/schedules.md, "Your own schedule": a YAML in <dir>/schedule/, hydra.searchpath and the schedules entry
     (tmp_path / "myconf" / "schedule").mkdir(parents=True)

@@ -146,3 +146,19 @@ def test_a_sweep_over_commanded_velocities_gets_the_envelope_and_a_polar(tmp_pat
         (job / ".hydra" / "overrides.yaml").write_text(f"- mpc.horizon={10 + i}\n")
         (job / "metrics.json").write_text(json.dumps({"speed_mps": 0.01}))
     assert "envelope_mps" not in summarize(other) and not (other / "summary_polar.png").exists()
+
+
+def test_a_replay_sweeps_per_gait_metrics_are_columns_named_gait_dot_metric(tmp_path: Path) -> None:
+    # a replay's metrics.json holds one object per gait: a sweep over a model setting gathers each gait's numbers
+    import json
+
+    for i, e in enumerate((2.0e7, 2.1e7)):
+        job = tmp_path / f"{i}_robot.leg.youngs_modulus={e}"
+        (job / ".hydra").mkdir(parents=True)
+        (job / ".hydra" / "overrides.yaml").write_text(f"- robot.leg.youngs_modulus={e}\n")
+        gait = {"gait": "forward", "distance_per_cycle_mm": 30.0 - 20 * i, "heading_defined": True}
+        (job / "metrics.json").write_text(json.dumps({"forward": gait, "cost": 1.5}))
+    table = summarize(tmp_path)
+    assert table["forward.distance_per_cycle_mm"].tolist() == [30.0, 10.0]
+    assert table["cost"].tolist() == [1.5, 1.5]
+    assert "forward.gait" not in table and "forward.heading_defined" not in table  # numbers only

@@ -33,7 +33,14 @@ from ..config import (
     num_field,
 )
 from ..controllers.schedule import ScheduleControllerConfig
-from ..locomotion.schedules import cycle_s, foot_strokes, gait_metrics, with_profile_velocity, wrap_deg
+from ..locomotion.schedules import (
+    cycle_s,
+    foot_slides,
+    foot_strokes,
+    gait_metrics,
+    with_profile_velocity,
+    wrap_deg,
+)
 from ..runlog import find_logs, load_run
 from . import EXPERIMENTS, Experiment
 from ._logged import git_commit, run_logged
@@ -167,6 +174,8 @@ def _gait_row(name: str, log: Path, cfg: SlotConfig, out_dir: Path) -> dict:
             row["heading_deg"],
         )
     )
+    legs = list(cfg.robot.leg.names)
+    row.update(foot_slides(run.t, feet_xy(run, legs), cycle_s(schedule), exp.measure_from_s))
     row["grip_efficiency"] = row["distance_per_cycle_mm"] / row["stroke_ceiling_mm"]
     row["robot_compass_deg"] = schedule.heading_deg
     row["robot_turn"] = schedule.turn or ""  # a turning gait's spin on the robot (cw, ccw)
@@ -187,13 +196,15 @@ def _gait_row(name: str, log: Path, cfg: SlotConfig, out_dir: Path) -> dict:
 def feet_reach(run, legs: list[str]) -> np.ndarray:
     """Each foot's horizontal distance from its leg's root (n, 4), m, from the log's markers: how far out along
     its leg it is (the legs move in their vertical planes)."""
+    roots = np.stack([run.markers[[f"{leg}_n0.0", f"{leg}_n0.1"]].to_numpy(float) for leg in legs], axis=1)
+    offset = feet_xy(run, legs) - roots
+    return np.hypot(offset[..., 0], offset[..., 1])
+
+
+def feet_xy(run, legs: list[str]) -> np.ndarray:
+    """Each foot's horizontal position in the world (n, 4, 2), m, from the log's markers."""
     m = run.markers
-    out = np.empty((len(m), len(legs)))
-    for i, leg in enumerate(legs):
-        foot = m[[f"{leg}_foot.0", f"{leg}_foot.1"]].to_numpy(float)
-        root = m[[f"{leg}_n0.0", f"{leg}_n0.1"]].to_numpy(float)
-        out[:, i] = np.hypot(*(foot - root).T)
-    return out
+    return np.stack([m[[f"{leg}_foot.0", f"{leg}_foot.1"]].to_numpy(float) for leg in legs], axis=1)
 
 
 def replay_markdown(table: pd.DataFrame) -> str:

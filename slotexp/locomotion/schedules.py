@@ -140,6 +140,19 @@ def foot_strokes(
     }
 
 
+def foot_slides(t: np.ndarray, feet: np.ndarray, cycle: float, measure_from_s: float) -> dict:
+    """How far each foot travels over the ground per cycle, over the whole cycles after ``measure_from_s``: the
+    path length of its horizontal position ``feet`` (n, 4, 2), m, at times ``t``. A foot that anchors barely
+    moves; one that slides moves about as far as its stroke. Which feet anchor is what decides a reach-and-pull
+    gait on Coulomb friction (docs/results/gaits.md), and the stroke columns cannot show it."""
+    first = math.ceil(measure_from_s / cycle - 1e-9)
+    last = math.floor((t[-1] - t[0]) / cycle + 1e-9)
+    i0 = int(np.argmin(np.abs(t - t[0] - first * cycle)))
+    i1 = int(np.argmin(np.abs(t - t[0] - last * cycle)))
+    path = np.linalg.norm(np.diff(feet[i0 : i1 + 1], axis=0), axis=2).sum(axis=0) / max(1, last - first)
+    return {f"slide_{i}_mm": float(v * 1e3) for i, v in enumerate(path)}
+
+
 def wrap_deg(angle: float) -> float:
     """An angle in (-180, 180]."""
     return -((-angle + 180.0) % 360.0 - 180.0)
