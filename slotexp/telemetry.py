@@ -56,7 +56,7 @@ TOPICS: dict[str, str] = {
     STATE_MEASURED: f"the state the controller saw (with measurement noise): {_STATE}",
     REFERENCE: f"the reference at the same time: {_STATE}",
     COST: "stage: the MPC's stage cost of the state against the reference",
-    FORCES: "applied (4, 3) N, planned (4, 3) N, legs: their names",
+    FORCES: "applied (4, 3) N (sent; the soft plant takes tendon angles), planned (4, 3) N, legs: their names",
     CONTACT: "stance (4), mu (4), fz_max (4): the plan's first step",
     TENDON: "command_deg (4): the tendon angles commanded",
     MPC_STATS: "status, success, fallback, iterations, solve_time_s, wall_time_s, objective, infeasible_total",

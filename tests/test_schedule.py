@@ -212,6 +212,7 @@ def test_foot_slides_are_each_feet_path_over_the_ground_per_cycle() -> None:
     assert out["slide_0_mm"] == 0.0 and out["slide_3_mm"] == 0.0
     assert out["slide_1_mm"] == pytest.approx(2 * np.pi * 10.0, rel=1e-4)  # the chords of 840 samples a cycle
     assert out["slide_2_mm"] == pytest.approx(16.0, rel=1e-9)
+    assert out["slide_min_mm"] == 0.0 and out["slide_max_mm"] == out["slide_1_mm"]
 
 
 def test_a_users_own_schedule_in_their_config_directory_plays_like_a_shipped_one(tmp_path: Path):

@@ -150,7 +150,11 @@ def foot_slides(t: np.ndarray, feet: np.ndarray, cycle: float, measure_from_s: f
     i0 = int(np.argmin(np.abs(t - t[0] - first * cycle)))
     i1 = int(np.argmin(np.abs(t - t[0] - last * cycle)))
     path = np.linalg.norm(np.diff(feet[i0 : i1 + 1], axis=0), axis=2).sum(axis=0) / max(1, last - first)
-    return {f"slide_{i}_mm": float(v * 1e3) for i, v in enumerate(path)}
+    return {
+        **{f"slide_{i}_mm": float(v * 1e3) for i, v in enumerate(path)},
+        "slide_min_mm": float(path.min() * 1e3),  # the foot that holds best
+        "slide_max_mm": float(path.max() * 1e3),
+    }
 
 
 def wrap_deg(angle: float) -> float:
