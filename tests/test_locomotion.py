@@ -119,6 +119,29 @@ def test_library_brackets_headings_and_scales_speed_against_standing() -> None:
     assert lib.command(np.array([0.0, -0.02]), 0.0).parts[0][1].name in ("r", "b")  # bracket by heading
 
 
+def test_the_bracket_searches_a_ring_made_once_exactly_as_one_made_per_call() -> None:
+    # _bracket's headings are computed once at build time (the path loop asks for a bracket ~30 times a step):
+    # the same arithmetic as building them per call, so the same brackets and fractions to the last bit
+    prims = [_prim("f", 0.0, 0.03), _prim("d", 44.0, 0.025), _prim("l", 90.0, 0.02), _prim("b", 181.5, 0.03),
+             _prim("r", -92.0, 0.02)]  # fmt: skip
+    lib = GaitLibrary(STYLE, prims, 70.0, TOP)
+
+    def per_call(heading: float) -> tuple[str, str, float]:  # the computation as it was, from the primitives
+        h = np.asarray([p.heading_deg for p in lib.translation], float)
+        x = (heading - h[0]) % 360.0
+        rel = (h - h[0]) % 360.0
+        j = int(np.searchsorted(rel, x, side="right") - 1)
+        k = (j + 1) % len(h)
+        span = (rel[k] - rel[j]) % 360.0 if k != j else 360.0
+        span = span or 360.0
+        return lib.translation[j].name, lib.translation[k].name, float((x - rel[j]) / span)
+
+    rng = np.random.default_rng(3)
+    for heading in [*rng.uniform(-720.0, 720.0, 2000), 0.0, 44.0, 90.0, 181.5, -92.0, 268.0, 360.0]:
+        a, b, lam = lib._bracket(float(heading))
+        assert (a.name, b.name, lam) == per_call(float(heading))
+
+
 def test_cycle_blend_alternates_whole_primitives_so_the_mean_velocity_points_where_commanded() -> None:
     prims = [_prim("f", 0.0, 0.03), _prim("f_slow", 4.0, 0.02), _prim("l", 90.0, 0.02), _prim("b", 180.0, 0.03)]
     lib = GaitLibrary(STYLE, prims, 70.0, TOP)  # blend="cycles" by default

@@ -22,6 +22,19 @@ def _unclipped(v: np.ndarray) -> np.ndarray:
     return v
 
 
+def test_the_written_out_closeness_test_answers_as_np_allclose() -> None:
+    # path._close stands in for np.allclose on the path loop's planar commands: the same answer on random pairs
+    # and on pairs placed on either side of its tolerance, where a rounding would show
+    from slotexp.locomotion.path import _close
+
+    rng = np.random.default_rng(7)
+    for _ in range(20000):
+        b = rng.normal(scale=rng.choice([1e-9, 1e-3, 0.02, 1.0]), size=2)
+        gap = (1e-8 + 1e-5 * np.abs(b)) * rng.choice([0.0, 0.5, 0.999999, 1.0, 1.000001, 2.0], size=2)
+        a = b + gap * rng.choice([-1.0, 1.0], size=2)
+        assert _close(a, b) == bool(np.allclose(a, b))
+
+
 def test_the_correction_is_turned_into_the_body_frame_by_the_measured_yaw() -> None:
     # behind along world +x with the body turned 90 deg left: the body must go towards its right (-y)
     loop = PathLoop(kp=1.0, ki=0.0, window_steps=1, period=PERIOD)

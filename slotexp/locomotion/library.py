@@ -99,6 +99,11 @@ class GaitLibrary:
                 "run slot run experiment=gait_search (docs/soft.md)"
             )
         self.translation = self._aligned(sorted(kept, key=lambda p: p.heading_deg), kept[0], style, top_deg)
+        # the ring of headings :meth:`_bracket` searches, relative to the first (deg): made once, not per call
+        # (the path loop's envelope bisection asks for a bracket some thirty times a control period)
+        headings = np.asarray([p.heading_deg for p in self.translation], float)
+        self._ring_first = headings[0]
+        self._ring = (headings - headings[0]) % 360.0
         measured = {p.name: p for p in kept}
         # how far each primitive's clock was moved, cycles: a robot that starts on it starts where the search did
         self._shift = {p.name: float(p.phase[0] - measured[p.name].phase[0]) for p in self.translation}
@@ -140,11 +145,10 @@ class GaitLibrary:
 
     def _bracket(self, heading_deg: float) -> tuple[Primitive, Primitive, float]:
         """The two primitives whose headings bracket ``heading_deg`` (cyclically) and the blend fraction."""
-        h = np.asarray([p.heading_deg for p in self.translation], float)
-        x = (heading_deg - h[0]) % 360.0
-        rel = (h - h[0]) % 360.0
+        rel = self._ring
+        x = (heading_deg - self._ring_first) % 360.0
         j = int(np.searchsorted(rel, x, side="right") - 1)
-        k = (j + 1) % len(h)
+        k = (j + 1) % len(rel)
         span = (rel[k] - rel[j]) % 360.0 if k != j else 360.0
         span = span or 360.0
         return self.translation[j], self.translation[k], float((x - rel[j]) / span)

@@ -75,10 +75,16 @@ class PathLoop:
         wanted = body(integral)
         clipped = _fit(wanted, base_body, clip)
         # conditional integration: not while the command is clipped, unless the step unwinds the integral
-        if np.allclose(clipped, wanted) or np.linalg.norm(integral) < np.linalg.norm(self.integral):
+        if _close(clipped, wanted) or np.linalg.norm(integral) < np.linalg.norm(self.integral):
             self.integral = integral
             return clipped
         return _fit(body(self.integral), base_body, clip)
+
+
+def _close(a: np.ndarray, b: np.ndarray) -> bool:
+    """``np.allclose(a, b)`` for finite vectors of one length, its test written out: |a - b| <= 1e-8 + 1e-5 |b|
+    (the same float64 operations, so the same answer, at a tenth of the cost on a planar command)."""
+    return all(abs(x - y) <= 1e-8 + 1e-5 * abs(y) for x, y in zip(a, b, strict=True))
 
 
 def _fit(wanted: np.ndarray, base: np.ndarray, clip) -> np.ndarray:
@@ -88,7 +94,8 @@ def _fit(wanted: np.ndarray, base: np.ndarray, clip) -> np.ndarray:
     correction with the forward one. Where the part across does not fit by itself, the whole is clipped."""
 
     def inside(v: np.ndarray) -> bool:  # the envelope leaves a command inside it exactly as it is
-        return bool(np.array_equal(clip(v), v))
+        c = clip(v)  # (a planar command: two comparisons cost less than np.array_equal, called ~40 times a step)
+        return bool(c[0] == v[0] and c[1] == v[1])
 
     if inside(wanted):
         return wanted
