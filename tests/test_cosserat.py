@@ -359,6 +359,8 @@ def test_the_accuracy_comparison_measures_speed_and_differences_analytically():
     diff = compare(other, run)
     assert diff["max_dz_mm"] == pytest.approx(1.0) and diff["max_dattitude_deg"] == pytest.approx(0.5)
     assert diff["max_dyaw_deg"] == pytest.approx(0.25 * t[-1])
+    assert diff["yaw_rate_error_dps"] == pytest.approx(-0.25, rel=1e-9)  # the drift's rate, the turn unwrapped
+    assert same["yaw_rate_error_dps"] == 0.0
     assert diff["rms_dnormal_n"] == pytest.approx(0.5) and diff["max_dxy_mm"] == 0.0
 
 

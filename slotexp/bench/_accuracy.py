@@ -8,7 +8,8 @@ feet's forces. So each setting runs the same closed-loop cases as the reference
 - gait speed: the mean planar speed after the start-up (net displacement over
   time), as a fraction of the reference's;
 - the torso: max |dz|, max |dxy|, max |d roll|, |d pitch| and max |d yaw| after the start-up (the yaw apart:
-  a plant whose gait turns a little faster drifts its heading, which the heading loop answers with a roll);
+  a plant whose gait turns a little faster drifts its heading, which the heading loop answers with a roll),
+  and the difference of the mean yaw rates (reported, not judged);
 - the feet: the RMS difference of the four normal forces after the start-up.
 
 Stick-slip walking is sensitive to small differences (a foot that slips one
@@ -154,6 +155,13 @@ def gait_speed(trace: Trace, start: float = SPEED_FROM_S) -> float:
     return float(np.linalg.norm(trace.x[-1, 3:5] - trace.x[k, 3:5]) / span)
 
 
+def yaw_rate(trace: Trace, start: float) -> float:
+    """Mean yaw rate (deg/s) from ``start`` (s) on: the unwrapped heading's change over the time."""
+    k = int(np.searchsorted(trace.t, start))
+    yaw = np.unwrap(trace.x[k:, 2])
+    return float(np.degrees(yaw[-1] - yaw[0]) / (trace.t[-1] - trace.t[k]))
+
+
 def compare(run: Trace, ref: Trace, judged_from: float = 0.0) -> dict[str, float]:
     """How far ``run`` is from ``ref`` (same case): the module docstring's figures, the torso's and the
     feet's from ``judged_from`` (s) on."""
@@ -171,6 +179,10 @@ def compare(run: Trace, ref: Trace, judged_from: float = 0.0) -> dict[str, float
         "max_dxy_mm": 1000.0 * float(np.max(np.linalg.norm(dx[:, 3:5], axis=1))),
         "max_dattitude_deg": float(np.degrees(np.max(np.abs(dx[:, 0:2])))),
         "max_dyaw_deg": float(np.degrees(np.max(np.abs(wrap_angle(dx[:, 2]))))),
+        # not judged: what a step's yaw difference is made of. A gait that turns a little faster at a larger step
+        # drifts its heading steadily (backward Euler's error is first order in the step), where chaos would
+        # wander it; the heading loop answers either with a roll (the attitude column)
+        "yaw_rate_error_dps": yaw_rate(run, start) - yaw_rate(ref, start),
         "rms_dnormal_n": float(np.sqrt(np.mean((run.normal[k:n] - ref.normal[k:n]) ** 2))),
         "wall_s": run.wall_s,
         "real_time_factor": real_time_factor(run),
