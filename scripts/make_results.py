@@ -680,7 +680,7 @@ CEILING_SWEEP = [
 ]
 
 
-def fit_scan(key: str, factors: tuple[float, ...]):
+def fit_scan(key: str, factors: tuple[float, ...], extra: tuple[str, ...] = ()):
     """The identified model's forward gait (results/identify_robot/fit.yaml) over 24 s, with its setting ``key``
     swept over ``factors`` of the fit and the others at the fit: where between the issue's 10 % either way the
     gait falls off, and which feet anchor on either side (docs/results/gaits.md)."""
@@ -693,7 +693,8 @@ def fit_scan(key: str, factors: tuple[float, ...]):
                   for k, v in fit.items() if k != key]  # fmt: skip
         swept = ",".join(f"{fit[key] * f:.6g}" for f in factors)
         return ["experiment=replay", "plant=cosserat", "experiment.schedules=[forward]", "experiment.gif=false",
-                "experiment.duration=24", *values, f"{key}={swept}", "hydra.sweep.subdir=${hydra.job.num}"]  # fmt: skip
+                "experiment.duration=24", *values, *extra, f"{key}={swept}",
+                "hydra.sweep.subdir=${hydra.job.num}"]  # fmt: skip
 
     return args
 
@@ -706,6 +707,10 @@ SWEEPS = {
         "robot.leg.youngs_modulus", (0.9, 0.95, 0.98, 1.0, 1.01, 1.02, 1.03, 1.04, 1.05, 1.07, 1.1)
     ),
     "replay_fit_friction_scan": fit_scan("robot.contact.friction", (0.8, 0.9, 0.95, 1.0, 1.05, 1.1, 1.25)),
+    # the same fit with its legs compliant across their planes: can the rear feet hold, and does the body then go?
+    "replay_fit_out_of_plane_scan": fit_scan(
+        "robot.leg.youngs_modulus", (0.9, 1.0, 1.05, 1.1), ("robot.leg.out_of_plane=bending",)
+    ),
 }
 
 
