@@ -10,7 +10,9 @@ also pays the backend's one-off setup) and the infeasible steps
 ``summary.md`` and ``summary.png`` in the multirun directory. A sweep over commanded
 velocities (``gait.velocity``) of runs that measure their speed also gets ``summary_polar.png``:
 the speed made per heading beside the command and, where the controller logs it, the
-library's envelope (``envelope_mps``; ``speed_of_envelope`` is the fraction made).
+library's envelope (``envelope_mps``; ``speed_of_envelope`` is the fraction made). A replay's metrics (one
+object per gait) become ``<gait>.<metric>`` columns, and a sweep over one numeric setting also gets
+``summary_gaits.png``: each gait's distance per cycle, and its feet's slides, against that setting.
 """
 
 from __future__ import annotations
@@ -237,7 +239,47 @@ def summarize(multirun_dir: Path) -> pd.DataFrame:
     _plot(table, multirun_dir / "summary.png")
     if "command_heading_deg" in table and "speed_mps" in table:
         _plot_polar(table, multirun_dir / "summary_polar.png")
+    setting = _numeric_setting(table, swept)
+    gaits = [c[: -len(DISTANCE)] for c in table.columns if c.endswith(DISTANCE)]
+    if setting and gaits:
+        _plot_gaits(table, setting, gaits, multirun_dir / "summary_gaits.png")
     return table
+
+
+DISTANCE = ".distance_per_cycle_mm"  # a replay's per-gait distance column (its metrics.json, one object per gait)
+
+
+def _numeric_setting(table: pd.DataFrame, swept: list[str]) -> str | None:
+    """The sweep's one varied setting where it is a number (a model setting such as robot.leg.youngs_modulus);
+    None for several, or a non-number."""
+    if len(swept) != 1:
+        return None
+    values = pd.to_numeric(table[swept[0]], errors="coerce")
+    return swept[0] if values.notna().all() else None
+
+
+def _plot_gaits(table: pd.DataFrame, setting: str, gaits: list[str], path: Path) -> None:
+    """A replay swept over one model setting: each gait's distance per cycle against it, and (where measured) how
+    far its feet travel over the ground per cycle, the one that holds best and the one that slides most: where a
+    gait falls off and which feet change from sliding to holding there (docs/results/gaits.md)."""
+    x = pd.to_numeric(table[setting]).to_numpy(float)
+    order = np.argsort(x)
+    slides = [g for g in gaits if f"{g}.slide_min_mm" in table]
+    fig = new_figure(6.5, 5.5 if slides else 3.5)
+    axes = fig.subplots(2 if slides else 1, 1, sharex=True, squeeze=False)[:, 0]
+    for i, g in enumerate(gaits):
+        axes[0].plot(x[order], table[f"{g}{DISTANCE}"].to_numpy(float)[order], "o-", color=f"C{i}", label=g)
+    axes[0].set_ylabel("distance per cycle (mm)")
+    axes[0].legend(fontsize=7)
+    for i, g in enumerate(slides):
+        for key, style in (("slide_min_mm", "o-"), ("slide_max_mm", "s--")):
+            label = f"{g}: {'least' if key == 'slide_min_mm' else 'most'}"
+            axes[1].plot(x[order], table[f"{g}.{key}"].to_numpy(float)[order], style, color=f"C{i}", label=label)
+    if slides:
+        axes[1].set_ylabel("foot's slide (mm per cycle)")
+        axes[1].legend(fontsize=7)
+    axes[-1].set_xlabel(setting)
+    save(fig, path)
 
 
 def missing_jobs(multirun_dir: Path, jobs: list[Path]) -> list[int]:

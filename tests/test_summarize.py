@@ -146,6 +146,7 @@ def test_a_sweep_over_commanded_velocities_gets_the_envelope_and_a_polar(tmp_pat
         (job / ".hydra" / "overrides.yaml").write_text(f"- mpc.horizon={10 + i}\n")
         (job / "metrics.json").write_text(json.dumps({"speed_mps": 0.01}))
     assert "envelope_mps" not in summarize(other) and not (other / "summary_polar.png").exists()
+    assert not (other / "summary_gaits.png").exists()  # no gait's distance in its metrics
 
 
 def test_a_replay_sweeps_per_gait_metrics_are_columns_named_gait_dot_metric(tmp_path: Path) -> None:
@@ -156,9 +157,13 @@ def test_a_replay_sweeps_per_gait_metrics_are_columns_named_gait_dot_metric(tmp_
         job = tmp_path / f"{i}_robot.leg.youngs_modulus={e}"
         (job / ".hydra").mkdir(parents=True)
         (job / ".hydra" / "overrides.yaml").write_text(f"- robot.leg.youngs_modulus={e}\n")
-        gait = {"gait": "forward", "distance_per_cycle_mm": 30.0 - 20 * i, "heading_defined": True}
+        gait = {"gait": "forward", "distance_per_cycle_mm": 30.0 - 20 * i, "heading_defined": True,
+                "slide_min_mm": 35.0 - 25 * i, "slide_max_mm": 60.0}  # fmt: skip
         (job / "metrics.json").write_text(json.dumps({"forward": gait, "cost": 1.5}))
     table = summarize(tmp_path)
     assert table["forward.distance_per_cycle_mm"].tolist() == [30.0, 10.0]
     assert table["cost"].tolist() == [1.5, 1.5]
+    assert table["forward.slide_min_mm"].tolist() == [35.0, 10.0]
     assert "forward.gait" not in table and "forward.heading_defined" not in table  # numbers only
+    # one numeric model setting swept and a per-gait distance: the gaits' figure against that setting
+    assert (tmp_path / "summary_gaits.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
