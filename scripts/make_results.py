@@ -589,13 +589,33 @@ def mean_walk_command() -> list[str]:
     ]
 
 
-def heldout_on_the_fit() -> list[str]:
-    """The held-out gaits on the model identified from the visible ones (results/identify_robot/fit.yaml)."""
+def _fit(result: str) -> dict:
+    """An identification's best values (results/<result>/fit.yaml), by config path."""
     import yaml
 
-    fit = yaml.safe_load((ROOT / "results" / "identify_robot" / "fit.yaml").read_text())["overrides"]
-    values = [f"{k}=[{','.join(f'{x:g}' for x in v)}]" if isinstance(v, list) else f"{k}={v:g}" for k, v in fit.items()]
-    return ["experiment=replay", "plant=cosserat", HELD_OUT, "experiment.gif=false", *values]
+    return yaml.safe_load((ROOT / "results" / result / "fit.yaml").read_text())["overrides"]
+
+
+def _as_overrides(values: dict, scale: dict[str, float] | None = None) -> list[str]:
+    """``values`` as command-line overrides (a list setting as ``[a,b,...]``), each one named in ``scale`` scaled."""
+    out = []
+    for key, value in values.items():
+        f = (scale or {}).get(key, 1.0)
+        out.append(
+            f"{key}=[{','.join(f'{x * f:g}' for x in value)}]" if isinstance(value, list) else f"{key}={value * f:g}"
+        )
+    return out
+
+
+def heldout_on_the_fit() -> list[str]:
+    """The held-out gaits on the model identified from the visible ones (results/identify_robot/fit.yaml)."""
+    return [
+        "experiment=replay",
+        "plant=cosserat",
+        HELD_OUT,
+        "experiment.gif=false",
+        *_as_overrides(_fit("identify_robot")),
+    ]
 
 
 def visible_on_the_fit() -> list[str]:
@@ -609,16 +629,7 @@ def _on_the_robust_fit(name: str | None = None, factor: float = 1.0):
     its cost charged (E and friction)?"""
 
     def args() -> list[str]:
-        import yaml
-
-        fit = yaml.safe_load((ROOT / "results" / "identify_robot_robust_offset" / "fit.yaml").read_text())
-        values = []
-        for key, value in fit["overrides"].items():
-            scale = factor if key == name else 1.0
-            if isinstance(value, list):
-                values.append(f"{key}=[{','.join(f'{x * scale:g}' for x in value)}]")
-            else:
-                values.append(f"{key}={value * scale:g}")
+        values = _as_overrides(_fit("identify_robot_robust_offset"), {name: factor} if name else None)
         return ["experiment=replay", "plant=cosserat", "experiment.gif=false", *values]
 
     return args
@@ -686,11 +697,8 @@ def fit_scan(key: str, factors: tuple[float, ...], extra: tuple[str, ...] = ()):
     gait falls off, and which feet anchor on either side (docs/results/gaits.md)."""
 
     def args() -> list[str]:
-        import yaml
-
-        fit = yaml.safe_load((ROOT / "results" / "identify_robot" / "fit.yaml").read_text())["overrides"]
-        values = [f"{k}=[{','.join(f'{x:g}' for x in v)}]" if isinstance(v, list) else f"{k}={v:g}"
-                  for k, v in fit.items() if k != key]  # fmt: skip
+        fit = _fit("identify_robot")
+        values = _as_overrides({k: v for k, v in fit.items() if k != key})
         swept = ",".join(f"{fit[key] * f:.6g}" for f in factors)
         return ["experiment=replay", "plant=cosserat", "experiment.schedules=[forward]", "experiment.gif=false",
                 "experiment.duration=24", *values, *extra, f"{key}={swept}",

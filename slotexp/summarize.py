@@ -272,9 +272,10 @@ def _plot_gaits(table: pd.DataFrame, setting: str, gaits: list[str], path: Path)
     axes[0].set_ylabel("distance per cycle (mm)")
     axes[0].legend(fontsize=7)
     for i, g in enumerate(slides):
-        for key, style in (("slide_min_mm", "o-"), ("slide_max_mm", "s--")):
-            label = f"{g}: {'least' if key == 'slide_min_mm' else 'most'}"
-            axes[1].plot(x[order], table[f"{g}.{key}"].to_numpy(float)[order], style, color=f"C{i}", label=label)
+        for key, style, which in (("slide_min_mm", "o-", "least"), ("slide_max_mm", "s--", "most")):
+            axes[1].plot(
+                x[order], table[f"{g}.{key}"].to_numpy(float)[order], style, color=f"C{i}", label=f"{g}: {which}"
+            )
     if slides:
         axes[1].set_ylabel("foot's slide (mm per cycle)")
         axes[1].legend(fontsize=7)

@@ -163,18 +163,18 @@ def _gait_row(name: str, log: Path, cfg: SlotConfig, out_dir: Path) -> dict:
     exp = cfg.experiment
     schedule = cfg.schedules[name]
     run = load_run(log)
+    legs = list(cfg.robot.leg.names)
     row = {"gait": name, **gait_metrics(run.t, run.x, cycle_s(schedule), exp.measure_from_s)}
     row.update(
         foot_strokes(
             run.t,
-            feet_reach(run, list(cfg.robot.leg.names)),
+            feet_reach(run, legs),
             cycle_s(schedule),
             exp.measure_from_s,
             np.radians(cfg.robot.leg.yaw_deg),
             row["heading_deg"],
         )
     )
-    legs = list(cfg.robot.leg.names)
     row.update(foot_slides(run.t, feet_xy(run, legs), cycle_s(schedule), exp.measure_from_s))
     row["grip_efficiency"] = row["distance_per_cycle_mm"] / row["stroke_ceiling_mm"]
     row["robot_compass_deg"] = schedule.heading_deg

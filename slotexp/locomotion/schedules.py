@@ -91,6 +91,14 @@ def heading_defined(positions: np.ndarray) -> bool:
     return bool(np.linalg.norm(mean) > 2.0 * np.linalg.norm(standard_error))
 
 
+def cycle_starts(t: np.ndarray, cycle: float, measure_from_s: float) -> list[int]:
+    """The sample index (of times ``t``) at which each whole cycle after ``measure_from_s`` starts, and the index
+    at which the last one ends: the span every per-cycle measure of a played schedule is taken over."""
+    first = math.ceil(measure_from_s / cycle - 1e-9)
+    last = math.floor((t[-1] - t[0]) / cycle + 1e-9)
+    return [int(np.argmin(np.abs(t - t[0] - k * cycle))) for k in range(first, last + 1)]
+
+
 def gait_metrics(t: np.ndarray, x: np.ndarray, cycle: float, measure_from_s: float) -> dict:
     """Distance per cycle, speed, headings, yaw rate and heave over the whole cycles after ``measure_from_s``.
 
@@ -99,11 +107,9 @@ def gait_metrics(t: np.ndarray, x: np.ndarray, cycle: float, measure_from_s: flo
     (clockwise from forward), the robot starting at zero yaw; ``heading_defined`` says whether
     the cycles agree on it (:func:`heading_defined`).
     """
-    first = math.ceil(measure_from_s / cycle - 1e-9)
-    last = math.floor((t[-1] - t[0]) / cycle + 1e-9)
-    bounds = [int(np.argmin(np.abs(t - t[0] - k * cycle))) for k in range(first, last + 1)]  # each cycle's start
+    bounds = cycle_starts(t, cycle, measure_from_s)
     i0, i1 = bounds[0], bounds[-1]
-    cycles = last - first
+    cycles = len(bounds) - 1
     span = t[i1] - t[i0]
     d = x[i1, 3:5] - x[i0, 3:5]
     heading = float(np.degrees(np.arctan2(d[1], d[0])))
@@ -128,8 +134,7 @@ def foot_strokes(
     reach ``reach`` (n, 4), m, within each cycle, averaged), the stroke ceiling (how far per cycle the body would
     go along ``heading_deg`` if every stroke were gripped whole, :func:`slotexp.locomotion.openloop.stroke_ceiling`)
     and the grip efficiency (distance over ceiling): which of the two limits a gait meets on the model."""
-    first = math.ceil(measure_from_s / cycle - 1e-9)
-    i0 = int(np.argmin(np.abs(t - t[0] - first * cycle)))
+    i0 = cycle_starts(t, cycle, measure_from_s)[0]
     steps = max(1, int(round(cycle / float(np.median(np.diff(t))))))
     stroke = strokes(reach, i0, steps)
     ceiling = stroke_ceiling(stroke, leg_yaw, heading_deg, 1.0) * 1e3  # per cycle: a frequency of one
@@ -145,11 +150,9 @@ def foot_slides(t: np.ndarray, feet: np.ndarray, cycle: float, measure_from_s: f
     path length of its horizontal position ``feet`` (n, 4, 2), m, at times ``t``. A foot that anchors barely
     moves; one that slides moves about as far as its stroke. Which feet anchor is what decides a reach-and-pull
     gait on Coulomb friction (docs/results/gaits.md), and the stroke columns cannot show it."""
-    first = math.ceil(measure_from_s / cycle - 1e-9)
-    last = math.floor((t[-1] - t[0]) / cycle + 1e-9)
-    i0 = int(np.argmin(np.abs(t - t[0] - first * cycle)))
-    i1 = int(np.argmin(np.abs(t - t[0] - last * cycle)))
-    path = np.linalg.norm(np.diff(feet[i0 : i1 + 1], axis=0), axis=2).sum(axis=0) / max(1, last - first)
+    bounds = cycle_starts(t, cycle, measure_from_s)
+    path = np.linalg.norm(np.diff(feet[bounds[0] : bounds[-1] + 1], axis=0), axis=2).sum(axis=0)
+    path /= max(1, len(bounds) - 1)
     return {
         **{f"slide_{i}_mm": float(v * 1e3) for i, v in enumerate(path)},
         "slide_min_mm": float(path.min() * 1e3),  # the foot that holds best
