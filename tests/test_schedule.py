@@ -165,7 +165,7 @@ def test_schedules_played_in_a_batch_follow_the_closed_loop_schedule_runs(tmp_pa
     # closed loop steps (t + period) - t, which from the third tick differs from the period in its last bit.
     cfg = load("plant=cosserat", "experiment=replay")
     names = ["forward", "crawl_forward"]
-    t, xs = play(with_profile_velocity(cfg, 0.0), names, 1.0, 50.0)
+    t, xs, retaken = play(with_profile_velocity(cfg, 0.0), names, 1.0, 50.0)
     for b, name in enumerate(names):
         run_logged(schedule_config(cfg, name), cfg.scenarios["baseline"], 1.0, tmp_path / f"{name}.mcap", "{}", "t")
         run = load_run(tmp_path / f"{name}.mcap")
@@ -174,6 +174,7 @@ def test_schedules_played_in_a_batch_follow_the_closed_loop_schedule_runs(tmp_pa
         np.testing.assert_allclose(run.x[:, 6:], xs[b, : len(run.t), 6:], rtol=0, atol=1e-4)  # rates: m/s, rad/s
         assert len(run.t) >= len(t) - 1
     assert np.abs(xs[0, -1, 3:5] - xs[0, 0, 3:5]).max() > 1e-5  # the robots moved: the comparison is not vacuous
+    assert retaken.tolist() == [0, 0]  # the default model never needs a period retaken (plant.retakes)
 
 
 def test_foot_strokes_measure_each_feet_travel_and_the_distance_they_would_give_gripped_whole() -> None:

@@ -292,13 +292,14 @@ def evaluate(task: tuple[SlotConfig, list[str], float, float, float, int]) -> di
 
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
-        t, xs = play(cfg, names, duration, rate_hz)
+        t, xs, retaken = play(cfg, names, duration, rate_hz)
     except Exception as exc:  # a candidate that diverges is a bad candidate, not a failed fit
         return {"error": f"{type(exc).__name__}: {exc}"}
     if not np.isfinite(xs).all():
         return {"error": "the state went non-finite"}
     gaits = {name: gait_metrics(t, xs[b], cycle_s(cfg.schedules[name]), measure_from_s) for b, name in enumerate(names)}
-    return {"t": t, "gaits": gaits, "com": {name: xs[b, :, 3:6] for b, name in enumerate(names)}}
+    com = {name: xs[b, :, 3:6] for b, name in enumerate(names)}
+    return {"t": t, "gaits": gaits, "com": com, "retaken": int(retaken.sum())}
 
 
 # --------------------------------------------------------------------------- observations
@@ -588,6 +589,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
                         "cost_perturbed": np.asarray(each[1:] or [c]),
                         "values": v,
                         "failed": "error" in r,
+                        "retaken": r.get("retaken", 0),  # periods retaken by backward Euler (plant.retakes)
                         **_flat(r),
                     },
                 )
@@ -724,6 +726,8 @@ def report(out_dir: Path, cfg: SlotConfig) -> dict:
         "cost": best_cost,
         "evaluations": int(len(candidates)),
         "failed": int(candidates["failed"].sum()) if "failed" in candidates else 0,
+        # candidates with a period retaken after diverging (plant.retakes): scored by what they do all the same
+        "retaken": int((candidates["retaken"] > 0).sum()) if "retaken" in candidates else 0,
         "delta_chi2_68": delta,
         "parameters": spread,
         "residuals": res.to_dict(orient="records"),

@@ -53,11 +53,15 @@ def with_profile_velocity(cfg: SlotConfig, rpm: float) -> SlotConfig:
     return replace(cfg, robot=replace(cfg.robot, servo=replace(cfg.robot.servo, profile_velocity_rpm=rpm)))
 
 
-def play(cfg: SlotConfig, names: list[str], duration: float, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+def play(
+    cfg: SlotConfig, names: list[str], duration: float, rate_hz: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Play schedules ``names`` open loop for ``duration`` s, tendon goals sampled at ``rate_hz``.
 
-    Returns the times (n + 1,) and each robot's state (len(names), n + 1, 12), sampled every
-    tick. The robots start standing, as a closed-loop run does, and follow the same steps.
+    Returns the times (n + 1,), each robot's state (len(names), n + 1, 12), sampled every
+    tick, and how many of each robot's periods were retaken after diverging (its setting-down
+    included; ``plant.retakes``). The robots start standing, as a closed-loop run does, and follow
+    the same steps.
     """
     robot = build_robot(cfg.robot)
     legs = list(cfg.robot.leg.names)
@@ -74,7 +78,7 @@ def play(cfg: SlotConfig, names: list[str], duration: float, rate_hz: float) -> 
         t = k * period
         batch.step(np.stack([td[step_index(s, t)] for s, td in zip(schedules, tendons, strict=True)]), period)
         xs[:, k + 1] = [p.state() for p in plants]
-    return np.arange(n + 1) * period, xs
+    return np.arange(n + 1) * period, xs, np.array([p.retaken_periods for p in plants])
 
 
 def heading_defined(positions: np.ndarray) -> bool:

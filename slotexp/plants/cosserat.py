@@ -34,7 +34,7 @@ from ..soft.coupled import (
     stacked,
     velocity_from_momentum,
 )
-from ..soft.integrators import divergence_message, stable_dt
+from ..soft.integrators import J_AGE, J_OFFSET, divergence_message, stable_dt
 from ..soft.loads import pair_free_length, rest_free_length
 from ..soft.params import O_F, O_FL, O_N, O_T, OUT, P_TPAIR, leg_params
 from ..soft.rod import LegModel, build_leg, lateral_stiffness
@@ -44,6 +44,10 @@ from . import PLANTS, TendonCommand
 SETTLE_S = 0.4  # s the legs get to settle under the held torso before a run starts
 SETTLE_ITERATIONS = 8  # ... in this many steps towards the servo angle that carries the weight
 LOWERING_MOVES = 25  # per settling step in the first half, in which the torso is lowered onto its initial pose
+# Newton passes of a retaken period (plant.retakes): backward Euler, which the corrections solve, where the linearly
+# implicit step (one linearisation at each step's start) blew up: a soft leg curled by its tendon turns its elements
+# by tenths of a radian in one step, beyond what one linearisation covers
+RETAKE_NEWTON = 8
 
 
 def belly_points(torso: TorsoConfig) -> np.ndarray:
@@ -76,6 +80,9 @@ class CosseratPlantConfig(PlantConfig):
     # implicit step: passes per step (1: linearly implicit, one linearisation at the step's start; more:
     # Newton corrections towards backward Euler, which stays stable in contact at millisecond steps)
     newton: int = num_field(1, lo=1, hi=50, unit="passes")
+    # implicit step: a control period whose steps diverge is taken again from its start by backward Euler
+    # (RETAKE_NEWTON passes), at half the step each further time it diverges, up to this many times (0: stop)
+    retakes: int = num_field(4, lo=0, hi=10, unit="retakes")
 
 
 @PLANTS.register()
@@ -118,8 +125,10 @@ class CosseratPlant:
         self.dt = cfg.sim.dt
         self.time = 0.0
         self.implicit = cfg.plant.integrator == "implicit"
+        self.retaken_periods = 0  # control periods taken again after their steps diverged (_retake)
         leg_cfg = cfg.robot.leg
         self.model: LegModel = build_leg(leg_cfg)
+        self.wave_speed = float(np.sqrt(leg_cfg.youngs_modulus / leg_cfg.density))  # m/s: no node moves faster
         m = self.model
         n = m.n_nodes
         lx, ly, lz = cfg.robot.torso.size
@@ -359,19 +368,61 @@ class CosseratPlant:
 
     def _run(self, period: float, f_ext: np.ndarray, hold: bool) -> None:
         n, h = self._steps(period)
-        own = Robot(*(getattr(self, name) for name in _OWN))
+        own = self._own()
+        kept = [a.copy() for a in own] if self._retaking else None  # the period's start, for a retake
         done = coupled_steps(*self._kernel_args(own, self._work, f_ext, h, n), hold)
-        self._advanced(done, n, h, "the soft-leg simulation", "the scenario's offsets and impulses")
+        if self._diverged(done, n) and kept is not None:
+            done, n, h = self._retake(kept, f_ext, n, h, hold)
+        self._advanced(done, n, h, "the soft-leg simulation", "the scenario's offsets and impulses", kept is not None)
+
+    def _own(self) -> Robot:
+        """This robot's own arrays (views: the kernels write them in place)."""
+        return Robot(*(getattr(self, name) for name in _OWN))
+
+    @property
+    def _retaking(self) -> bool:
+        """Whether a diverged period is taken again (:meth:`_retake`): the implicit step's, ``plant.retakes``."""
+        return self.implicit and self.cfg.plant.retakes > 0
+
+    def _diverged(self, done: int, n: int) -> bool:
+        """A run of steps cut short by the kernel (non-finite, or a tip 100 m away), a torso gone non-finite,
+        or a node faster than the rod's wave speed: in an elastic rod a material point moves at most at the
+        strain times sqrt(E / rho), so a faster one is the step blowing up, not the leg."""
+        return done < n or not np.all(np.isfinite(self.torso)) or not np.abs(self.vel).max() <= self.wave_speed
+
+    def _retake(
+        self, kept: list[np.ndarray], f_ext: np.ndarray, n: int, h: float, hold: bool
+    ) -> tuple[int, int, float]:
+        """Take a diverged period again from its start (``kept``): backward Euler solved by Newton corrections
+        (:data:`RETAKE_NEWTON` passes, the legs' own halvings within), at half the step each further time, up to
+        ``plant.retakes`` times. Returns the last try's (steps done, steps, step). The period then counts in
+        ``retaken_periods``; a period no retake carries through diverged."""
+        newton = max(self.cfg.plant.newton, RETAKE_NEWTON)
+        halve = self.cfg.plant.newton >= RETAKE_NEWTON  # a period already taken so is halved at once
+        done = 0
+        for k in range(self.cfg.plant.retakes):
+            for array, start in zip(self._own(), kept):
+                array[...] = start
+            self._work.jmeta[:, -(J_OFFSET + 1) + J_AGE] = np.inf  # the failed try's Jacobians: factored afresh
+            m = n << (k + halve)
+            done = coupled_steps(*self._kernel_args(self._own(), self._work, f_ext, h * n / m, m, newton), hold)
+            if not self._diverged(done, m):
+                self.retaken_periods += 1
+                return done, m, h * n / m
+        return done, m, h * n / m
 
     def _steps(self, period: float) -> tuple[int, float]:
         """How many steps cover ``period``, and their length (at most ``sim.dt``, equal)."""
         n = max(1, int(round(period / self.dt)))
         return n, period / n
 
-    def _kernel_args(self, own: Robot, work: Work, f_ext: np.ndarray, h: float, n: int) -> tuple:
+    def _kernel_args(
+        self, own: Robot, work: Work, f_ext: np.ndarray, h: float, n: int, newton: int | None = None
+    ) -> tuple:
         """The arguments :func:`coupled_steps` and :func:`batch_steps` share, in their order: the robot's
         arrays ``own`` and scratch ``work`` (one robot's, or a batch's stacked along a first axis), this
-        plant's torso, legs and settings, the external force, the step and the number of steps."""
+        plant's torso, legs and settings (``newton``: the implicit step's passes, if not the config's), the
+        external force, the step and the number of steps."""
         contact = self.cfg.robot.contact
         torso = TorsoModel(
             self.torso_mass, self.inertia, self.cfg.sim.gravity, self.corners, self.yaw, float(self.model.rest_theta[0])
@@ -383,23 +434,34 @@ class CosseratPlant:
             contact.slip_velocity,
             self.implicit,
             self.cfg.plant.jacobian_age,
-            self.cfg.plant.newton,
+            self.cfg.plant.newton if newton is None else newton,
             self.belly_points,
             self.belly_par,
             self.k_lat,
         )
         return own, work, torso, self.model, settings, f_ext, h, n
 
-    def _advanced(self, done: int, n: int, h: float, what: str, loads: str) -> None:
-        """Count ``done`` of ``n`` steps of ``h``; a run cut short or gone non-finite diverged."""
+    def _advanced(self, done: int, n: int, h: float, what: str, loads: str, retaken: bool = False) -> None:
+        """Count ``done`` of ``n`` steps of ``h``; a run cut short or gone non-finite diverged (``retaken``: the
+        steps are the last of :meth:`_retake`'s tries, if it diverged)."""
         self.time += done * h
         self._legs = None  # the legs moved
-        if done < n or not np.all(np.isfinite(self.torso)):
+        if self._diverged(done, n):
             limit = stable_dt(self.model, self.cfg.robot.contact.stiffness)
+            last = h if retaken else None
+            step = self._steps(n * h)[1] if retaken else h  # the configured period's own step
             raise DivergenceError(
                 divergence_message(
-                    what, self.time, h, self.cfg.plant.integrator, limit, ("sim.dt", "plant.integrator"), loads, self.dt
-                )
+                    what,
+                    self.time,
+                    step,
+                    self.cfg.plant.integrator,
+                    limit,
+                    ("sim.dt", "plant.integrator"),
+                    loads,
+                    self.dt,
+                    last,
+                )  # fmt: skip
             )
 
     def apply_impulse(self, linear: np.ndarray, angular: np.ndarray) -> None:
@@ -464,6 +526,10 @@ class CosseratBatch:
         first = self.plants[0]
         self.stacked.servo_cmd[:] = np.deg2rad(tendon_deg)
         n, h = first._steps(period)
+        kept = [a.copy() for a in self.stacked] if first._retaking else None
         batch_steps(*first._kernel_args(self.stacked, self.work, self.f_ext, h, n), self.done)
         for b, p in enumerate(self.plants):
-            p._advanced(int(self.done[b]), n, h, f"robot {b} of the batch", "its tendon commands")
+            done, steps, step = int(self.done[b]), n, h
+            if p._diverged(done, n) and kept is not None:  # retaken alone, from its row of the period's start
+                done, steps, step = p._retake([a[b] for a in kept], self.f_ext[b], n, h, False)
+            p._advanced(done, steps, step, f"robot {b} of the batch", "its tendon commands", kept is not None)

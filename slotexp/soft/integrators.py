@@ -773,11 +773,13 @@ def divergence_message(
     keys: tuple[str, str],
     loads: str,
     configured: float | None = None,
+    retaken_to: float | None = None,
 ) -> str:
     """One line for a blown-up simulation that names the step and integrator actually used and a fix that
     changes something: ``keys`` are the config keys of the step and of the integrator, ``loads`` what
     else could have driven it, ``configured`` the step the config asked for if ``h`` differs from it (a
-    period that is not a whole number of steps is split into equal shorter ones)."""
+    period that is not a whole number of steps is split into equal shorter ones), ``retaken_to`` the
+    shortest step the period was taken again with by backward Euler, if it was."""
     step_key, integrator_key = keys
     used = (
         f"{h:.3g} s"
@@ -785,6 +787,8 @@ def divergence_message(
         else f"{configured:.3g} s, steps of {h:.3g} s"
     )
     head = f"{what} diverged at t = {t:.4g} s with {step_key} = {used} ({integrator})"
+    if retaken_to is not None:
+        head += f", and again when retaken by backward Euler at steps down to {retaken_to:.3g} s"
     if integrator != "implicit" and h > explicit_limit:
         fix = (
             f"the symplectic step's stability limit for this leg is about {explicit_limit:.3g} s: lower {step_key} "
