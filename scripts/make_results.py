@@ -726,6 +726,7 @@ SWEEPS = {
 BENCHES = {
     "bench_mpc": ["mpc"],
     "bench_leg": ["leg"],
+    "bench_stability": ["stability"],  # which steps carry the gaits through across the identification's models
     "rigid_bench": ["rigid"],
     "bench_scene": ["scene"],  # what logging the 3D scene costs the closed loop, on each plant
     "bench_scene_ideal": ["scene", "plant=ideal"],

@@ -579,3 +579,24 @@ def test_an_accuracy_case_runs_with_its_own_controller_settings_and_leaves_the_c
     acc.run_case(cfg, case)
     assert seen["cfg"].controller.max_lean_deg == 0.0 and cfg.controller.max_lean_deg == 15.0
     assert seen["cfg"].gait.velocity == [0.02, 0.0]
+
+
+def test_the_stability_bench_varies_the_model_and_the_step_it_names_and_reads_a_divergence_as_a_result():
+    from slotexp.bench import stability
+
+    cfg = load("plant=cosserat")
+    model = stability._model(cfg, 1.5, 4.0e6, 5.0)
+    assert (model.robot.contact.friction, model.robot.leg.youngs_modulus, model.robot.leg.damping_per_s) == (
+        1.5,
+        4.0e6,
+        5.0,
+    )
+    assert model.robot.leg.length == cfg.robot.leg.length and model.sim == cfg.sim  # nothing else moved
+    run = stability._setting(model, 1e-3, 1, 8, 0)
+    assert (run.sim.dt, run.plant.jacobian_age, run.plant.newton, run.plant.retakes) == (1e-3, 1, 8, 0)
+    kept = stability._setting(model, None, None, None, None)
+    assert kept.sim == cfg.sim and kept.plant == cfg.plant
+    # soft legs without retakes blow up while being set down: a row, not an error
+    result = stability._play(stability._setting(model, None, None, None, 0))
+    assert result["ran_to_end"] is False
+    assert 0.0 < result["diverged_at_s"] < 0.1

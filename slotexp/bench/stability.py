@@ -1,0 +1,113 @@
+"""Which steps carry the soft robot through its gaits, across the models the identification searches.
+
+A step that is stable on the default model may not be on a softer or grippier one, and a search over models
+must not mistake the step blowing up for a bad model. Each row plays the robot's seven visible gaits open loop
+(:func:`slotexp.locomotion.schedules.play`, one batch, :data:`DURATION_S` each) on one model at one plant
+setting and reports whether all ran to the end, where the first failure came, and how many periods
+``plant.retakes`` took again. The models: the default and the corners of the identification's range (friction
+0.05 and 1.5, E 4e6 and 2.5e7 Pa) at its lowest damping (5 /s), where a step is hardest pressed. The
+settings: the default step with and without retakes, the linearly implicit step at 5e-4 s, and backward Euler
+(``plant.newton``) at 1, 5 and 10 ms. Speed columns: robot-seconds simulated per wall second (the kernels
+compiled or loaded first, by a short run that is not timed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import time
+from pathlib import Path
+
+from ..config import SlotConfig
+from ..errors import DivergenceError
+from ..locomotion.schedules import play
+from . import BenchRow, register
+
+DURATION_S = 8.0  # per gait, as the identification plays them
+RATE_HZ = 50.0
+GAITS = ["forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"]
+# (label, friction, E Pa, damping /s): None keeps the config's
+MODELS = (
+    ("default", None, None, None),
+    ("mu 0.05, E 4e6, c 5", 0.05, 4.0e6, 5.0),
+    ("mu 1.5, E 4e6, c 5", 1.5, 4.0e6, 5.0),
+    ("mu 0.05, E 2.5e7, c 5", 0.05, 2.5e7, 5.0),
+    ("mu 1.5, E 2.5e7, c 5", 1.5, 2.5e7, 5.0),
+)
+# (label, dt s, Jacobian age (None: the config's), Newton passes, retakes (None: the config's))
+SETTINGS = (
+    ("default step", None, None, None, None),
+    ("default step, no retakes", None, None, None, 0),
+    ("5e-4 s", 5e-4, None, 1, None),
+    ("1 ms, newton 8", 1e-3, 1, 8, None),
+    ("5 ms, newton 8", 5e-3, 1, 8, None),
+    ("10 ms, newton 8", 1e-2, 1, 8, None),
+)
+
+
+def _model(cfg: SlotConfig, friction: float | None, youngs: float | None, damping: float | None) -> SlotConfig:
+    leg, contact = cfg.robot.leg, cfg.robot.contact
+    leg = dataclasses.replace(
+        leg,
+        youngs_modulus=leg.youngs_modulus if youngs is None else youngs,
+        damping_per_s=leg.damping_per_s if damping is None else damping,
+    )
+    contact = dataclasses.replace(contact, friction=contact.friction if friction is None else friction)
+    return dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, leg=leg, contact=contact))
+
+
+def _setting(cfg: SlotConfig, dt: float | None, age: int | None, newton: int | None, retakes: int | None):
+    plant = dataclasses.replace(
+        cfg.plant,
+        jacobian_age=cfg.plant.jacobian_age if age is None else age,
+        newton=cfg.plant.newton if newton is None else newton,
+        retakes=cfg.plant.retakes if retakes is None else retakes,
+    )
+    return dataclasses.replace(cfg, plant=plant, sim=dataclasses.replace(cfg.sim, dt=cfg.sim.dt if dt is None else dt))
+
+
+def _play(cfg: SlotConfig) -> dict:
+    """Play the gaits; what came of it (a divergence is a result here, not an error)."""
+    start = time.perf_counter()
+    try:
+        _, _, retaken = play(cfg, GAITS, DURATION_S, RATE_HZ)
+    except DivergenceError as err:
+        found = re.search(r"diverged at t = ([0-9.eE+-]+) s", str(err))
+        return {
+            "ran_to_end": False,
+            "diverged_at_s": float(found.group(1)) if found else float("nan"),
+            "retaken_periods": float("nan"),
+            "wall_s": time.perf_counter() - start,
+        }
+    return {
+        "ran_to_end": True,
+        "diverged_at_s": float("nan"),
+        "retaken_periods": int(retaken.sum()),
+        "wall_s": time.perf_counter() - start,
+    }
+
+
+@register(overrides=["plant=cosserat"])
+def bench_stability(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
+    rows = []
+    robot_seconds = len(GAITS) * DURATION_S
+    for warm in (cfg, _setting(cfg, 0.01, 1, 8, None)):  # compile (or load) both paths, start the threads: untimed
+        play(warm, GAITS, 0.2, RATE_HZ)
+    for label, friction, youngs, damping in MODELS:
+        model = _model(cfg, friction, youngs, damping)
+        for name, dt, age, newton, retakes in SETTINGS:
+            run_cfg = _setting(model, dt, age, newton, retakes)
+            result = _play(run_cfg)
+            per_robot_s = result["wall_s"] / robot_seconds
+            rate = robot_seconds / result["wall_s"] if result["ran_to_end"] else float("nan")
+            rows.append(
+                BenchRow(
+                    "stability",
+                    f"{label}: {name}",
+                    per_robot_s * 1e6,
+                    per_robot_s * 1e6,
+                    rate,
+                    {"model": label, "setting": name, "dt": run_cfg.sim.dt, **result, "robot_seconds_per_wall_s": rate},
+                )  # fmt: skip
+            )
+    return rows
