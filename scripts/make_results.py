@@ -456,20 +456,6 @@ RUNS = {
         ]
         for tag, extra in (("", []), ("_guide_above", ["robot.tendon.guide_height=0.011"]))
     },
-    # ... and on the fit held to the paper's walking height (identify_robot_height40), off and on
-    **{
-        f"replay_height40_fit{tag}": [
-            "experiment=replay",
-            "plant=cosserat",
-            "robot.contact.friction=0.207",
-            "robot.servo.horn_zero_deg=[61.8,61.8,61.8,61.8]",
-            "robot.leg.youngs_modulus=7.07e6",
-            "robot.leg.damping_per_s=12.9",
-            *extra,
-            "experiment.gif=false",
-        ]
-        for tag, extra in {"": [], "_static0.31": ["robot.contact.static_friction=0.31"]}.items()
-    },
     # The fit of the uncertain settings to the robot's visible gaits (shared/data), and the check that the same
     # fit recovers known values from the model's own noisy observations (tables and tracks of every gait).
     "identify_robot": ["experiment=identify", "plant=cosserat", FITTED, "experiment.max_evals=96"],
@@ -644,8 +630,23 @@ ROBUST_FITTED = (
     "robot.tendon.offset",
 )
 
+
+def _on_the_height_fit(*extra: str):
+    """The visible gaits on the fit held to the paper's walking height (results/identify_robot_height40/fit.yaml),
+    with ``extra`` settings on top."""
+
+    def args() -> list[str]:
+        values = _as_overrides(_fit("identify_robot_height40"))
+        return ["experiment=replay", "plant=cosserat", *values, *extra, "experiment.gif=false"]
+
+    return args
+
+
 # runs whose arguments come from an earlier run's outputs (made after it)
 DERIVED = {
+    # the fit held to the paper's walking height, off and on static friction
+    "replay_height40_fit": _on_the_height_fit(),
+    "replay_height40_fit_static0.31": _on_the_height_fit("robot.contact.static_friction=0.31"),
     "simulate_cosserat_walk_open_loop_mean_command": mean_walk_command,
     "replay_fit": visible_on_the_fit,
     "replay_heldout_fit": heldout_on_the_fit,
