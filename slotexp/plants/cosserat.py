@@ -461,7 +461,7 @@ class CosseratPlant:
                     loads,
                     self.dt,
                     last,
-                )  # fmt: skip
+                )
             )
 
     def apply_impulse(self, linear: np.ndarray, angular: np.ndarray) -> None:
