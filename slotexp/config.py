@@ -569,6 +569,31 @@ def _check_gait(gait: GaitConfig) -> None:
             raise ConfigError(f"gait.phases[{i}] contact flags must be 0 (swing) or 1 (stance), got {row[1:]}")
 
 
+def setting(cfg: Any, path: str, what: str = "a setting") -> Any:
+    """The value at dotted ``path`` of a config; a ConfigError, headed by ``what`` asked, names a path that is
+    not there."""
+    node = cfg
+    for part in path.split("."):
+        if not dataclasses.is_dataclass(node) or part not in {f.name for f in dataclasses.fields(node)}:
+            raise ConfigError(f"{what}: {path} is not a setting (no {part!r} there)")
+        node = getattr(node, part)
+    return node
+
+
+def setting_unit(cfg: Any, path: str) -> str:
+    """The unit a setting's schema declares (``num_field``'s ``unit``; "" where none, for a ratio, or where
+    ``path`` is not in ``cfg``'s schema)."""
+    head, _, last = path.rpartition(".")
+    try:
+        node = setting(cfg, head) if head else cfg
+    except ConfigError:
+        return ""
+    found = (
+        next((f for f in dataclasses.fields(node) if f.name == last), None) if dataclasses.is_dataclass(node) else None
+    )
+    return str(found.metadata.get("unit", "")) if found is not None else ""
+
+
 def check_fields(cfg: SlotConfig) -> SlotConfig:
     """Every declared range and the rules among the root schema's own fields; raise :class:`ConfigError`.
 

@@ -28,6 +28,7 @@ import yaml
 
 from . import telemetry as T
 from .atomic import write_csv, write_text
+from .config import SlotConfig, setting_unit
 from .errors import UserError
 from .figures.style import new_figure, save
 from .record import LogReadError, read_log
@@ -279,7 +280,8 @@ def _plot_gaits(table: pd.DataFrame, setting: str, gaits: list[str], path: Path)
     if slides:
         axes[1].set_ylabel("foot's slide (mm per cycle)")
         axes[1].legend(fontsize=7)
-    axes[-1].set_xlabel(setting)
+    unit = setting_unit(SlotConfig(), setting)  # the schema's, where the setting is the base config's
+    axes[-1].set_xlabel(setting + (f" [{unit}]" if unit else ""))
     save(fig, path)
 
 

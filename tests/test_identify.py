@@ -55,6 +55,10 @@ def test_a_parameter_sets_scalars_and_every_entry_of_a_list_and_maps_to_the_unit
     assert setting(out, "robot.servo.horn_zero_deg") == [101.0] * 4
     with pytest.raises(ConfigError, match="robot.contact.frictoin is not a setting"):
         setting(cfg, "robot.contact.frictoin")
+    from slotexp.config import setting_unit  # the unit a figure labels a swept setting with
+
+    assert setting_unit(cfg, "robot.leg.youngs_modulus") == "Pa" and setting_unit(cfg, "plant.retakes") == "retakes"
+    assert setting_unit(cfg, "robot.contact.friction") == "" and setting_unit(cfg, "robot.contact.frictoin") == ""
     specs = [ParameterSpec("a", 0.05, 1.0, True), ParameterSpec("b", 80.0, 140.0, False)]
     values = np.array([0.3, 110.0])
     np.testing.assert_allclose(to_values(specs, to_unit(specs, values)), values, rtol=1e-12)

@@ -43,7 +43,7 @@ import json
 import math
 import os
 import sys
-from dataclasses import dataclass, field, fields, is_dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +52,8 @@ import pandas as pd
 import yaml
 
 from ..atomic import write_csv, write_json, write_text
-from ..config import SlotConfig, check_fields, choice_field, num_field
+from ..config import SlotConfig, check_fields, choice_field, num_field, setting_unit
+from ..config import setting as config_setting
 from ..errors import ConfigError, UserError
 from ..locomotion.schedules import cycle_s, gait_metrics, play, with_profile_velocity, wrap_deg
 from ..parallel import ParallelConfig, pool
@@ -215,20 +216,7 @@ class IdentifyExperiment:
 # --------------------------------------------------------------------------- parameters
 def setting(cfg: Any, path: str) -> Any:
     """The value at dotted ``path`` of a config; a ConfigError names a path that is not there."""
-    node = cfg
-    for part in path.split("."):
-        if not is_dataclass(node) or part not in {f.name for f in fields(node)}:
-            raise ConfigError(f"experiment.parameters: {path} is not a setting (no {part!r} there)")
-        node = getattr(node, part)
-    return node
-
-
-def setting_unit(cfg: Any, path: str) -> str:
-    """The unit a setting's schema declares (``num_field``'s ``unit``; "" where none, or for a ratio)."""
-    head, _, last = path.rpartition(".")
-    node = setting(cfg, head) if head else cfg
-    found = next((f for f in fields(node) if f.name == last), None) if is_dataclass(node) else None
-    return str(found.metadata.get("unit", "")) if found is not None else ""
+    return config_setting(cfg, path, "experiment.parameters")
 
 
 def with_setting(cfg: Any, path: str, value: float) -> Any:
