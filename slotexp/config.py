@@ -580,6 +580,16 @@ def setting(cfg: Any, path: str, what: str = "a setting") -> Any:
     return node
 
 
+def with_setting(cfg: Any, path: str, value: float) -> Any:
+    """``cfg`` with the setting at dotted ``path`` set to ``value`` (every entry of a list setting)."""
+    head, _, rest = path.partition(".")
+    current = getattr(cfg, head)
+    if rest:
+        return dataclasses.replace(cfg, **{head: with_setting(current, rest, value)})
+    new: Any = [float(value)] * len(current) if isinstance(current, list) else type(current)(value)
+    return dataclasses.replace(cfg, **{head: new})
+
+
 def setting_unit(cfg: Any, path: str) -> str:
     """The unit a setting's schema declares (``num_field``'s ``unit``; "" where none, for a ratio, or where
     ``path`` is not in ``cfg``'s schema)."""

@@ -13,12 +13,11 @@ compiled or loaded first, by a short run that is not timed).
 
 from __future__ import annotations
 
-import dataclasses
 import re
 import time
 from pathlib import Path
 
-from ..config import SlotConfig
+from ..config import SlotConfig, with_setting
 from ..errors import DivergenceError
 from ..locomotion.schedules import play
 from . import BenchRow, register
@@ -26,44 +25,33 @@ from . import BenchRow, register
 DURATION_S = 8.0  # per gait, as the identification plays them
 RATE_HZ = 50.0
 GAITS = ["forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"]
-# (label, friction, E Pa, damping /s): None keeps the config's
-MODELS = (
-    ("default", None, None, None),
-    ("mu 0.05, E 4e6, c 5", 0.05, 4.0e6, 5.0),
-    ("mu 1.5, E 4e6, c 5", 1.5, 4.0e6, 5.0),
-    ("mu 0.05, E 2.5e7, c 5", 0.05, 2.5e7, 5.0),
-    ("mu 1.5, E 2.5e7, c 5", 1.5, 2.5e7, 5.0),
+# (label, the model's settings by config path): the identification's range's corners
+MODELS = (("default", {}),) + tuple(
+    (label, {"robot.contact.friction": mu, "robot.leg.youngs_modulus": youngs, "robot.leg.damping_per_s": 5.0})
+    for label, mu, youngs in (
+        ("mu 0.05, E 4e6, c 5", 0.05, 4.0e6),
+        ("mu 1.5, E 4e6, c 5", 1.5, 4.0e6),
+        ("mu 0.05, E 2.5e7, c 5", 0.05, 2.5e7),
+        ("mu 1.5, E 2.5e7, c 5", 1.5, 2.5e7),
+    )
 )
-# (label, dt s, Jacobian age (None: the config's), Newton passes, retakes (None: the config's))
+# (label, the plant's settings by config path; the rest the config's)
 SETTINGS = (
-    ("default step", None, None, None, None),
-    ("default step, no retakes", None, None, None, 0),
-    ("5e-4 s", 5e-4, None, 1, None),
-    ("1 ms, newton 8", 1e-3, 1, 8, None),
-    ("5 ms, newton 8", 5e-3, 1, 8, None),
-    ("10 ms, newton 8", 1e-2, 1, 8, None),
+    ("default step", {}),
+    ("default step, no retakes", {"plant.retakes": 0}),
+    ("5e-4 s", {"sim.dt": 5e-4, "plant.newton": 1}),
+    *(
+        (f"{dt * 1e3:g} ms, newton 8", {"sim.dt": dt, "plant.jacobian_age": 1, "plant.newton": 8})
+        for dt in (1e-3, 5e-3, 1e-2)
+    ),
 )
 
 
-def _model(cfg: SlotConfig, friction: float | None, youngs: float | None, damping: float | None) -> SlotConfig:
-    leg, contact = cfg.robot.leg, cfg.robot.contact
-    leg = dataclasses.replace(
-        leg,
-        youngs_modulus=leg.youngs_modulus if youngs is None else youngs,
-        damping_per_s=leg.damping_per_s if damping is None else damping,
-    )
-    contact = dataclasses.replace(contact, friction=contact.friction if friction is None else friction)
-    return dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, leg=leg, contact=contact))
-
-
-def _setting(cfg: SlotConfig, dt: float | None, age: int | None, newton: int | None, retakes: int | None):
-    plant = dataclasses.replace(
-        cfg.plant,
-        jacobian_age=cfg.plant.jacobian_age if age is None else age,
-        newton=cfg.plant.newton if newton is None else newton,
-        retakes=cfg.plant.retakes if retakes is None else retakes,
-    )
-    return dataclasses.replace(cfg, plant=plant, sim=dataclasses.replace(cfg.sim, dt=cfg.sim.dt if dt is None else dt))
+def with_settings(cfg: SlotConfig, values: dict[str, float]) -> SlotConfig:
+    """``cfg`` with each setting of ``values`` (config path: value) replaced."""
+    for path, value in values.items():
+        cfg = with_setting(cfg, path, value)
+    return cfg
 
 
 def _play(cfg: SlotConfig) -> dict:
@@ -91,12 +79,11 @@ def _play(cfg: SlotConfig) -> dict:
 def bench_stability(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     rows = []
     robot_seconds = len(GAITS) * DURATION_S
-    for warm in (cfg, _setting(cfg, 0.01, 1, 8, None)):  # compile (or load) both paths, start the threads: untimed
+    for warm in (cfg, with_settings(cfg, SETTINGS[-1][1])):  # compile (or load) both paths, start the threads: untimed
         play(warm, GAITS, 0.2, RATE_HZ)
-    for label, friction, youngs, damping in MODELS:
-        model = _model(cfg, friction, youngs, damping)
-        for name, dt, age, newton, retakes in SETTINGS:
-            run_cfg = _setting(model, dt, age, newton, retakes)
+    for label, model in MODELS:
+        for name, setting in SETTINGS:
+            run_cfg = with_settings(cfg, {**model, **setting})
             result = _play(run_cfg)
             per_robot_s = result["wall_s"] / robot_seconds
             rate = robot_seconds / result["wall_s"] if result["ran_to_end"] else float("nan")
@@ -108,6 +95,6 @@ def bench_stability(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
                     per_robot_s * 1e6,
                     rate,
                     {"model": label, "setting": name, "dt": run_cfg.sim.dt, **result, "robot_seconds_per_wall_s": rate},
-                )  # fmt: skip
+                )
             )
     return rows

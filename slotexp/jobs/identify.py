@@ -43,7 +43,7 @@ import json
 import math
 import os
 import sys
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +52,7 @@ import pandas as pd
 import yaml
 
 from ..atomic import write_csv, write_json, write_text
-from ..config import SlotConfig, check_fields, choice_field, num_field, setting_unit
+from ..config import SlotConfig, check_fields, choice_field, num_field, setting_unit, with_setting
 from ..config import setting as config_setting
 from ..errors import ConfigError, UserError
 from ..locomotion.schedules import cycle_s, gait_metrics, play, with_profile_velocity, wrap_deg
@@ -217,16 +217,6 @@ class IdentifyExperiment:
 def setting(cfg: Any, path: str) -> Any:
     """The value at dotted ``path`` of a config; a ConfigError names a path that is not there."""
     return config_setting(cfg, path, "experiment.parameters")
-
-
-def with_setting(cfg: Any, path: str, value: float) -> Any:
-    """``cfg`` with ``path`` set to ``value`` (every entry of a list setting)."""
-    head, _, rest = path.partition(".")
-    current = getattr(cfg, head)
-    if rest:
-        return replace(cfg, **{head: with_setting(current, rest, value)})
-    new: Any = [float(value)] * len(current) if isinstance(current, list) else type(current)(value)
-    return replace(cfg, **{head: new})
 
 
 def to_values(specs: list[ParameterSpec], u: np.ndarray) -> np.ndarray:
