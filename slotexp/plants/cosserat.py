@@ -450,19 +450,20 @@ class CosseratPlant:
             limit = stable_dt(self.model, self.cfg.robot.contact.stiffness)
             last = h if retaken else None
             step = self._steps(n * h)[1] if retaken else h  # the configured period's own step
-            raise DivergenceError(
-                divergence_message(
-                    what,
-                    self.time,
-                    step,
-                    self.cfg.plant.integrator,
-                    limit,
-                    ("sim.dt", "plant.integrator"),
-                    loads,
-                    self.dt,
-                    last,
-                )
+            message = divergence_message(
+                what,
+                self.time,
+                step,
+                self.cfg.plant.integrator,
+                limit,
+                ("sim.dt", "plant.integrator"),
+                loads,
+                self.dt,
+                last,
             )
+            if self.implicit and not self._retaking:  # the retakes were turned off: say what they would do
+                message += ", or let the plant take a diverging period again by backward Euler (plant.retakes=4)"
+            raise DivergenceError(message)
 
     def apply_impulse(self, linear: np.ndarray, angular: np.ndarray) -> None:
         """A push on the torso (world, about its centre): the momentum takes it, the velocity follows."""
