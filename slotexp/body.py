@@ -43,7 +43,7 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def advance_quaternion(torso, w0, w1, w2, h):
     """q <- q exp(h w / 2), renormalised: the torso's attitude (``torso[3:7]``) turned by the body-frame
     angular velocity (w0, w1, w2) held over a step of ``h``."""
@@ -61,7 +61,7 @@ def advance_quaternion(torso, w0, w1, w2, h):
     torso[3], torso[4], torso[5], torso[6] = n0 / norm, n1 / norm, n2 / norm, n3 / norm
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def solve_spd(a, b, x):
     """x = a^-1 b for a small symmetric positive definite ``a`` (Cholesky; ``a`` is overwritten by its factor)."""
     n = b.shape[0]

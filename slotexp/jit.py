@@ -42,12 +42,22 @@ _MARK = "_slotexp_keyed_cache"
 _DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "stencil"}
 
 
-def njit(fn: Callable | None = None, **options: Any) -> Any:
+def njit(fn: Callable | None = None, *, allocates: bool = True, **options: Any) -> Any:
     """``numba.njit`` with ``cache=True`` (unless told otherwise) and the dependency-keyed stamp.
 
     Use as ``@njit`` or ``@njit(fastmath=True, ...)``.
+
+    ``allocates=False`` compiles a kernel that creates no array (and returns none) without numba's runtime:
+    the arrays it unpacks from a tuple, slices or passes on are then borrowed, where the runtime counts a
+    reference to each with an atomic add and takes it back at the end. In the soft plant's step that
+    counting was a third of the kernels' time (``perf``: numba's ``NRT_incref``/``NRT_decref``), and the
+    step's own arithmetic is unchanged by it, bit for bit. A kernel so compiled that allocates (``np.empty``,
+    a slice copied onto a slice, ``np.linalg``) does not compile, nor does one that calls a kernel that
+    allocates: every kernel it calls must be ``allocates=False`` too. (numba's option for it is ``_nrt``.)
     """
     options.setdefault("cache", True)
+    if not allocates:
+        options["_nrt"] = False
 
     def compile_(function: Callable) -> Any:
         setattr(function, _MARK, True)

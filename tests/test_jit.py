@@ -122,3 +122,44 @@ def test_a_kernel_compiles_and_caches_in_the_temporary_directory_when_nothing_el
     cached = list(tmp.glob("slotexp-numba-*/**/*.nbi"))
     assert {p.name.split(".")[0] for p in cached} == {"a", "b"}
     assert not list((tmp_path / "pkgx").glob("__pycache__/*.nbi"))  # nothing in the tree
+
+
+def test_a_kernel_without_the_runtime_borrows_views_and_gives_the_same_numbers() -> None:
+    """``allocates=False`` kernels (the soft plant's step) take array views and tuples of arrays without
+    counting references; what they compute is their Python function's."""
+    import numpy as np
+
+    from slotexp.jit import njit
+
+    def axpy_rows(pair, a, out):
+        x, y = pair
+        for i in range(x.shape[0]):
+            row = x[i]  # a view, borrowed
+            for j in range(row.shape[0]):
+                out[i, j] = a * row[j] + y[i, j]
+        return out[0, 0]
+
+    kernel = njit(cache=False, allocates=False)(axpy_rows)
+    rng = np.random.default_rng(3)
+    x, y = rng.normal(size=(5, 4)), rng.normal(size=(5, 4))
+    got, want = np.zeros((5, 4)), np.zeros((5, 4))
+    assert kernel((x[1:], y[1:]), 0.7, got[1:]) == axpy_rows((x[1:], y[1:]), 0.7, want[1:])
+    assert np.array_equal(got, want)
+
+
+def test_a_kernel_that_claims_not_to_allocate_but_does_is_refused() -> None:
+    """It does not compile (rather than leak or free what it was lent)."""
+    import numpy as np
+    import pytest
+    from numba.core.errors import NumbaError
+
+    from slotexp.jit import njit
+
+    @njit(cache=False, allocates=False)
+    def copies(x):
+        y = np.empty_like(x)
+        y[:] = x
+        return y[0]
+
+    with pytest.raises(NumbaError):
+        copies(np.ones(3))

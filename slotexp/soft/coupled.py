@@ -153,7 +153,7 @@ def row(batch: tuple, b: int) -> tuple:
     return batch[b]
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _leg_axes(rot, cy, sy):
     """A leg's direction in the world's vertical: its horizontal unit u = (ux, uy), the direction's height
     component and horizontal length (the leg plane is the vertical plane through the corner along u)."""
@@ -164,7 +164,7 @@ def _leg_axes(rot, cy, sy):
     return dwx / horiz, dwy / horiz, dwz, horiz
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _corner_offset(rot, corner):
     """A corner's offset from the torso centre in the world frame."""
     return (
@@ -174,7 +174,7 @@ def _corner_offset(rot, corner):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def augmented_inertia(torso, rot, torso_mass, inertia, corners, cy, sy, pos, mass, out):
     """The 6x6 inertia of the torso and the legs' motion across their planes, about the torso centre, world frame.
 
@@ -235,7 +235,7 @@ def augmented_inertia(torso, rot, torso_mass, inertia, corners, cy, sy, pos, mas
             out[a, b] = out[b, a]
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _sync_legs(torso, momentum, rot, corners, cy, sy, pos, eta, vel, omega, mass, inertia_el, prev_corner, prev_u):
     """Bring every leg's plane to the torso's pose, every node keeping its world position and momentum.
 
@@ -303,7 +303,7 @@ def _sync_legs(torso, momentum, rot, corners, cy, sy, pos, eta, vel, omega, mass
         prev_u[i, 1] = uy
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def velocity_from_momentum(torso, momentum, rot, aug, scratch, rhs, xi):
     """The torso's velocity (v, w) from the momentum state and the 6x6 inertia ``aug`` at this pose:
     written into ``torso[7:13]`` (w in the body frame) and ``xi`` (w in the world frame)."""
@@ -313,14 +313,16 @@ def velocity_from_momentum(torso, momentum, rot, aug, scratch, rhs, xi):
     rhs[3] = momentum[3] - (p1 * momentum[2] - p2 * momentum[1])
     rhs[4] = momentum[4] - (p2 * momentum[0] - p0 * momentum[2])
     rhs[5] = momentum[5] - (p0 * momentum[1] - p1 * momentum[0])
-    scratch[:, :] = aug
+    for a in range(6):  # element by element: a slice copy would allocate (the kernel allocates nothing)
+        for b in range(6):
+            scratch[a, b] = aug[a, b]
     solve_spd(scratch, rhs, xi)
     torso[7], torso[8], torso[9] = xi[0], xi[1], xi[2]
     for a in range(3):
         torso[10 + a] = rot[0, a] * xi[3] + rot[1, a] * xi[4] + rot[2, a] * xi[5]
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly, implicit_normal):
     """One of the torso's underside points on the ground: penalty normal force and isotropic Coulomb friction
     (:func:`coulomb_friction`'s law in the plane of the floor), the friction linearised in the torso's velocity
@@ -375,7 +377,7 @@ def _belly_contact(point, rot, pz, xi, par, h, load, damp, belly, implicit_norma
     belly[2] += fy
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _series_spring(k_lat, deflection, slope_sum, h):
     """A leg's contact patch on a sideways spring ``k_lat`` in series with its friction (slopes summing to C).
 
@@ -392,7 +394,7 @@ def _series_spring(k_lat, deflection, slope_sum, h):
     return k_lat * h / denominator, k_lat * deflection / denominator
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _root_map(ux, uy, rcx, rcy, rcz, jmap):
     """The map J (3, 6) from the torso's velocity (v, w world) to a leg root's (v_s along u, v_z, omega about
     u x e_z) at the corner offset ``rc``; its transpose takes the root's reaction (f_s, f_z, m) to the torso's
@@ -410,7 +412,7 @@ def _root_map(ux, uy, rcx, rcy, rcz, jmap):
     jmap[2, 4] = -ux
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _add_leg_answer(jmap, response, h, xi, system, rhs6):
     """Put a leg's reaction change S J (xi_new - xi) into the torso's step: system -= h J^T S J, rhs -= h J^T S J xi."""
     for a in range(6):
@@ -423,7 +425,7 @@ def _add_leg_answer(jmap, response, h, xi, system, rhs6):
             rhs6[a] -= h * g * xi[b]
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _answer(jmap, response, dxi, du, load, out, reaction):
     """A leg's reaction at the torso's new velocity: R += S du with du = J dxi, into the torso's ``load``, the
     leg's ``out`` (f_s, f_z, m) and its world ``reaction`` (force, moment)."""
@@ -449,7 +451,7 @@ def _answer(jmap, response, dxi, du, load, out, reaction):
             reaction[4] -= d * ux
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _follow_root(zcols, du, h, pos, vel, theta, omega):
     """Move a leg's free nodes and elements by its answer to its root's change ``du``: velocities by z du,
     positions and angles by h z du (the root node follows the corner at the next step)."""
@@ -510,6 +512,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
     root = np.zeros(6)
     vlat = np.zeros(n_nodes)
     saved = np.zeros((4, 3 * n_nodes - 1))  # the implicit step's Newton corrections and halvings (implicit_step)
+    roots = np.zeros((3, 6))
     # backward Euler (newton > 1): the torso takes each leg's answer to its root's velocity into its own step
     # (root_response): the legs' velocity response (3 per leg), their reaction's (3 x 3), the map from the
     # torso's velocity (v, w world) to the root's (v_s, v_z, omega)
@@ -585,7 +588,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
                 jac = JacobianState(lu[i], kband[i], jvec[i], jmeta[i])
                 taken = implicit_step(
                     state, leg, par[i], free_length, root, vlat, h, normal[i], out[i], scratch, jac, max_age, newton,
-                    saved,
+                    saved, roots,
                 )  # fmt: skip
                 # a step retaken as m shorter ones answers through its last: the leg's velocities by z du, its
                 # positions by h / m z du, the torso by the last one's reaction change over 1 / m of the step

@@ -83,7 +83,7 @@ TANGENT_PASSES = 4  # Newton corrections that linearise the friction by its tang
 MAX_HALVINGS = 6  # a step whose Newton corrections do not converge is retaken as up to 2^6 shorter ones
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _set_root(pos, vel, root):
     pos[0, 0] = root[0]
     pos[0, 1] = root[1]
@@ -91,7 +91,7 @@ def _set_root(pos, vel, root):
     vel[0, 1] = root[3]
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _finish_step(pos, tension, pair_upper, total_n, total_f, out):
     """Report the step's tension (and which cable pulls) and contact totals; flag a blown-up state
     (non-finite, or the tip 100 m away) so the caller can stop with the step and the stability limit named."""
@@ -104,7 +104,7 @@ def _finish_step(pos, tension, pair_upper, total_n, total_f, out):
         out[O_DIV] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _normal_force(pos, vel, i, ground, k_c, d_c):
     """Node ``i``'s contact normal force, k depth - d v_z, or 0 above the ground or pulling."""
     if not ground or pos[i, 1] >= 0.0:
@@ -112,7 +112,7 @@ def _normal_force(pos, vel, i, ground, k_c, d_c):
     return max(0.0, -k_c * pos[i, 1] - d_c * vel[i, 1])
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _friction_newton_slope(vs, vlat, nrm, mu, v_eps, mu_s, v_s, tangent):
     """The slope along the plane of :func:`coulomb_friction` that a Newton correction uses: its tangent
     (``tangent``; quadratic convergence where the node stays sliding or sticking) or its secant (a
@@ -125,7 +125,7 @@ def _friction_newton_slope(vs, vlat, nrm, mu, v_eps, mu_s, v_s, tangent):
     return mu * nrm * vlat * vlat / (speed * speed * speed)
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _solve_w(lu, jvec, gz, taut, b):
     """``b`` := W^-1 ``b``: the factored band, then (the cable taut) its rank-one term by Sherman-Morrison, with
     ``jvec`` = (W^-1 u, grad L) and ``gz`` = 1 + g^T W^-1 u as the factorisation kept them."""
@@ -140,7 +140,7 @@ def _solve_w(lu, jvec, gz, taut, b):
             b[d] -= ratio * smu[d]
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _root_rows(kband, x):
     """The root node's two rows of the band ``kband`` (h^2 K) times ``x``: what moving the nodes by h x changes
     in the force on the root (its reaction, times -h)."""
@@ -198,7 +198,7 @@ def step_work(n_nodes: int, legs: int | None = None) -> StepWork:
     )
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def rotate_directors(cth, sth, theta, omega, h):
     """theta += h omega, and turn the directors by the same angle without trig calls.
 
@@ -227,7 +227,7 @@ def _inline_in_the_leg_loop(expr, caller_ir, callee_ir) -> bool:
     return caller_ir.func_id.func_name == "step_symplectic"
 
 
-@njit(cache=True, inline=_inline_in_the_leg_loop)
+@njit(cache=True, inline=_inline_in_the_leg_loop, allocates=False)
 def symplectic_once(state, leg, inv_mass, inv_inertia, par, free_length, root, vlat, h, normal, out, work):
     """One symplectic (semi-implicit) Euler step with implicit damping, contact and friction.
 
@@ -328,7 +328,7 @@ def step_symplectic(state, leg, par, free_length, root, h, n_steps, normal, out)
     _set_root(pos, state.vel, root)
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, correction, vstart):
     """One linearly implicit Euler step, W (M - h^2 K - h C) dv = h F(x, v) - h^2 K v, v' = v + dv.
 
@@ -558,7 +558,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     return change
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _save(state, saved):
     """The state's velocities into ``saved[0]`` and positions into ``saved[1]``, in the step's layout (3N - 1)."""
     pos, vel, theta, omega = state
@@ -572,7 +572,7 @@ def _save(state, saved):
         saved[1, 3 * e + 2] = theta[e]
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _restore(state, saved):
     """The state :func:`_save` kept in ``saved``."""
     pos, vel, theta, omega = state
@@ -586,14 +586,15 @@ def _restore(state, saved):
         theta[e] = saved[1, 3 * e + 2]
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def _newton_step(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, newton, saved, end):
     """One backward Euler step of ``h`` from ``root``: the linearly implicit pass and up to ``newton`` - 1
     corrections. Returns whether the corrections converged (a correction moved no position by more than
     ``NEWTON_TOL``)."""
     _save(state, saved)
     implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, 0, saved[0])
-    end[:] = root  # the root at the step's end: where the corrections evaluate the loads
+    for k in range(6):  # the root at the step's end: where the corrections evaluate the loads
+        end[k] = root[k]
     end[0] += h * root[2]
     end[1] += h * root[3]
     end[4] += h * root[5]
@@ -606,8 +607,8 @@ def _newton_step(state, leg, par, free_length, root, vlat, h, normal, out, work,
     return False
 
 
-@njit(cache=True)
-def implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, newton, saved):
+@njit(cache=True, allocates=False)
+def implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, newton, saved, roots):
     """One implicit Euler step of ``h`` with the root moving as ``root`` says.
 
     ``newton`` = 1: the linearly implicit step (:func:`implicit_once`). More: backward Euler, solved by the
@@ -620,16 +621,15 @@ def implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work
     and a switch within the step (a node landing, a foot sticking, a cable going slack) it sees only a step
     late: at millisecond steps the overshoot grew from step to step (the loaded leg diverged at 1.5 ms).
     Backward Euler itself is stable there; the corrections solve it, and the halving keeps a switch the
-    corrections cannot resolve from spoiling the step. ``saved`` (4, 3N - 1) is scratch. Returns the number
-    of steps taken (1 unless halved).
+    corrections cannot resolve from spoiling the step. ``saved`` (4, 3N - 1) and ``roots`` (3, 6: a shorter
+    step's root, the step's end, the reactions' sums) are scratch. Returns the number of steps taken (1 unless
+    halved).
     """
     if newton <= 1:
         implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, 0, saved[0])
         return 1
     start = saved[2:4]  # the step's start, kept while a halving retakes it (saved[0:2] serve each step)
-    sub_root = np.empty(6)
-    end = np.empty(6)
-    sums = np.zeros(3)
+    sub_root, end, sums = roots[0], roots[1], roots[2]
     _save(state, start)
     for level in range(MAX_HALVINGS + 1):
         if level > 0:
@@ -640,7 +640,8 @@ def implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work
         sums[:] = 0.0
         converged = True
         for k in range(m):
-            sub_root[:] = root
+            for j in range(6):
+                sub_root[j] = root[j]
             sub_root[0] += k * hs * root[2]
             sub_root[1] += k * hs * root[3]
             sub_root[4] += k * hs * root[5]
@@ -757,8 +758,11 @@ def step_implicit(state, leg, par, free_length, root, h, n_steps, normal, out, j
         np.zeros(theta.shape[0]), np.zeros(theta.shape[0]),
     )  # fmt: skip
     saved = np.zeros((4, nd))
+    roots = np.zeros((3, 6))
     for _ in range(n_steps):
-        implicit_step(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, newton, saved)
+        implicit_step(
+            state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, newton, saved, roots
+        )
         if out[O_DIV] > 0.0:
             return
     _set_root(pos, state.vel, root)

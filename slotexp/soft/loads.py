@@ -72,7 +72,7 @@ from .params import (
 from .rod import LegModel, directors, elastic_forces_cs, element_kinematics, paper_elastic_forces
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def routed_geometry(pos, theta, cth, sth, theta_root, par):
     """The routed part's axial length sum a_e and its turn theta_{na-1} - theta_0: a cable at offset d
     from the centreline is sum a_e + d turn long (d > 0 below it, < 0 above)."""
@@ -84,7 +84,7 @@ def routed_geometry(pos, theta, cth, sth, theta_root, par):
     return length, theta[na - 1] - theta_root
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def bowstring(pos, cth, sth, theta_root, par):
     """The bowstring's anchor-to-guide geometry: (L, u_x, u_z, r_x, r_z, c, s) with L = |A - G|, u the unit
     vector from the guide to the anchor, r the guide's lever from the root node, (c, s) the anchor element's
@@ -105,7 +105,7 @@ def bowstring(pos, cth, sth, theta_root, par):
     return length, dx / length, dz / length, rx, rz, c, s
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def tendon_cable(pos, theta, cth, sth, theta_root, par, free_length):
     """(tension, offset) of the cable that pulls: the one below the centreline (offset ``par[P_TOFF]``);
     with a pair, the one above (offset ``-par[P_TOFF]``, free length ``P_TPAIR - free_length``) when the
@@ -149,7 +149,7 @@ def rest_free_length(model: LegModel, par: np.ndarray, slack: float) -> float:
     return tendon_length(model.rest_pos, model.rest_theta, model.rest_theta[0], par) + slack
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def tendon_tension(length, free_length, par) -> float:
     """T = min(k_t max(0, L - L_free), T_max)."""
     stretch = length - free_length
@@ -158,7 +158,7 @@ def tendon_tension(length, free_length, par) -> float:
     return min(par[P_TK] * stretch, par[P_TMAX])
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def add_tendon(pos, cth, sth, theta_root, tension, offset, par, force, moment) -> float:
     """-T grad L into force/moment, for the cable whose lever about the root is ``offset`` (:func:`tendon_cable`);
     returns the moment the cable puts on the root (the torso) beside the force it adds to the root node."""
@@ -184,7 +184,7 @@ def add_tendon(pos, cth, sth, theta_root, tension, offset, par, force, moment) -
     return tension * offset  # the cable leaves the root at the offset
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def tendon_jacobian(pos, cth, sth, theta_root, tension, offset, par, scale, band, grad_l):
     """Add grad L into ``grad_l`` and ``scale`` * T * hess L into ``band`` (the implicit step's layout).
 
@@ -226,7 +226,7 @@ def tendon_jacobian(pos, cth, sth, theta_root, tension, offset, par, scale, band
     grad_l[3 * (na - 1) + 2] += offset
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def conservative_forces(
     pos,
     theta,
@@ -274,14 +274,14 @@ def conservative_forces(
     return tension, m_root, offset
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def root_frame_velocity(pos, i, root):
     """The velocity node ``i`` would have moving rigidly with the root frame: the root's velocity
     (root[2], root[3]) plus its turning root[5] in the plane about the root node, at ``pos``."""
     return root[2] - root[5] * (pos[i, 1] - pos[0, 1]), root[3] + root[5] * (pos[i, 0] - pos[0, 0])
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def damping_reaction(pos, vel, omega, mass, inertia, par, root):
     """The damping acts between leg and torso: its reaction on the root (force along the plane, vertical
     force, moment about the root).
@@ -308,7 +308,7 @@ def damping_reaction(pos, vel, omega, mass, inertia, par, root):
     return c * fx, c * fz, c * m
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def root_reaction(force, m_root, mass, par, out):
     # node 0 belongs to the torso: its own weight is not a leg load
     out[O_FX] = force[0, 0]
@@ -316,7 +316,7 @@ def root_reaction(force, m_root, mass, par, out):
     out[O_M] = m_root
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def dissipative_params(par):
     """Settings of the loads both integrators treat implicitly (damping, contact, friction).
 
@@ -333,7 +333,7 @@ def dissipative_params(par):
 FRICTION_LEVELS = 8
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def friction_coefficient(speed, mu, mu_s, v_s):
     """The friction coefficient at a slip ``speed``: ``mu`` while sliding, rising to ``mu_s`` at rest.
 
@@ -348,7 +348,7 @@ def friction_coefficient(speed, mu, mu_s, v_s):
     return mu + (mu_s - mu) * np.exp(-x * x)
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def coulomb_friction(vs, vlat, nrm, mu, v_eps, mu_s, v_s):
     """Isotropic regularised Coulomb friction on a node pressed with ``nrm`` and slipping at (``vs``, ``vlat``).
 
@@ -362,7 +362,7 @@ def coulomb_friction(vs, vlat, nrm, mu, v_eps, mu_s, v_s):
     return -scale * vs, -scale * vlat
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def friction_slope(v, v_other, nrm, mu, v_eps, mu_s, v_s):
     """The slope the linearly implicit steps give :func:`coulomb_friction` along ``v`` (``v_other`` the
     slip's other component): its secant mu N / max(|v|, v_eps), alike in every direction.
@@ -379,7 +379,7 @@ def friction_slope(v, v_other, nrm, mu, v_eps, mu_s, v_s):
     return friction_coefficient(speed, mu, mu_s, v_s) * nrm / max(speed, v_eps)
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def friction_level(slope, nrm, mu, v_eps):
     """The Jacobian level of a sliding node's friction slope: 0 for the sticking slope mu N / v_eps, k for
     slopes in (4^-(k+1), 4^-k] of it, -1 below the last level (the slope is left out). ``mu`` is the
@@ -395,7 +395,7 @@ def friction_level(slope, nrm, mu, v_eps):
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def contact_proximal(vx, vz, vel_z, force_z, depth, hm, hc, damp, vrig_z, vlat, k_c, d_c, mu, v_eps):
     """Contact and friction of one node below the ground in the symplectic step, both implicit.
 
@@ -423,7 +423,7 @@ def contact_proximal(vx, vz, vel_z, force_z, depth, hm, hc, damp, vrig_z, vlat, 
     return vx, vz, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def contact_force(depth, vx, vz, vlat, k_c, d_c, mu, v_eps, mu_s, v_s):
     """Contact and friction of a node ``depth`` below the ground, for the implicit step.
 
@@ -450,7 +450,7 @@ def contact_force(depth, vx, vz, vlat, k_c, d_c, mu, v_eps, mu_s, v_s):
     return nrm, fx, g, 4 + 2 * level + back
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def contact_jacobian(i, nrm, g, regime, h, k_c, d_c, mu, v_eps, kband, band):
     """Node ``i``'s contact and friction Jacobians for the implicit step (:func:`contact_force`'s law):
     h^2 (-dF/dx) into ``kband`` and h (-dF/dv) into ``band``, in the step's banded layout. ``mu`` is

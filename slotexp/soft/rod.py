@@ -133,7 +133,7 @@ def model_from_shape(
     )
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def directors(theta, cth, sth):
     """cos and sin of every element angle, computed once per step and shared."""
     for e in range(theta.shape[0]):
@@ -141,7 +141,7 @@ def directors(theta, cth, sth):
         sth[e] = np.sin(theta[e])
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def element_kinematics(pos, e, c, s):
     """Element ``e``'s Delta = r_{e+1} - r_e and its components along the directors.
 
@@ -153,7 +153,7 @@ def element_kinematics(pos, e, c, s):
     return dx, dz, dx * c + dz * s, -dx * s + dz * c
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def bending_moments(theta, theta_root, voronoi, dtheta0, ei, moment) -> float:
     """Add -dU_v/dtheta of every vertex, the clamp at the root included, into ``moment``.
 
@@ -182,7 +182,7 @@ def elastic_forces(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, ei, for
     return elastic_forces_cs(pos, theta, cth, sth, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment)
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def elastic_forces_cs(pos, theta, cth, sth, theta_root, l0, voronoi, dtheta0, ea, ga, ei, force, moment) -> float:
     """:func:`elastic_forces` with the directors given."""
     n_el = theta.shape[0]
@@ -204,7 +204,7 @@ def elastic_forces_cs(pos, theta, cth, sth, theta_root, l0, voronoi, dtheta0, ea
     return bending_moments(theta, theta_root, voronoi, dtheta0, ei, moment)
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def elastic_energy(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, ei) -> float:
     n_el = theta.shape[0]
     u = 0.0
@@ -233,7 +233,7 @@ def elastic_hessian_band(pos, theta, theta_root, l0, voronoi, dtheta0, ea, ga, e
     elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, band, scale)
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, band, scale):
     """:func:`elastic_hessian_band` with the directors given; writes each entry directly."""
     n_el = theta.shape[0]
@@ -290,7 +290,7 @@ def elastic_hessian_cs(pos, theta, cth, sth, l0, voronoi, ea, ga, ei, band, scal
         band[i1, 4 + i0 - i1] -= scale * k
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def banded_factor(band):
     """In-place LU of a banded matrix (half-bandwidth 4), no pivoting; multipliers kept below,
     and each pivot's reciprocal in its place on the diagonal (the solve multiplies by it).
@@ -319,7 +319,7 @@ def banded_factor(band):
                     band[i, 4 + j - i] -= f * band[k, 4 + j - k]
 
 
-@njit(cache=True, fastmath={"contract"})
+@njit(cache=True, fastmath={"contract"}, allocates=False)
 def banded_substitute(band, x):
     """Solve in place with a matrix factored by :func:`banded_factor`.
 
@@ -377,7 +377,7 @@ def banded_substitute(band, x):
         b4 = b0
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def banded_multiply_subtract(band, v, out):
     """out -= band @ v, for a banded matrix in :func:`banded_factor`'s layout (unfactored); the
     interior rows written out, as in the factorisation."""
@@ -406,7 +406,7 @@ def banded_multiply_subtract(band, v, out):
         out[d] -= acc
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def paper_elastic_forces(
     pos, theta, cth, sth, theta_root, rest_pos, l0, voronoi, dtheta0, ea, ei, k_restore, force, moment
 ) -> float:

@@ -32,7 +32,7 @@ from ..jit import njit
 RPM_TO_RAD_S = 2.0 * 3.141592653589793 / 60.0
 
 
-@njit(cache=True)
+@njit(cache=True, allocates=False)
 def servo_step(
     angle: float,
     command: float,
