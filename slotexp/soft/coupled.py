@@ -48,6 +48,7 @@ from .integrators import (
     JacobianState,
     LegState,
     StepWork,
+    implicit_once,
     implicit_step,
     jacobian_state,
     root_response,
@@ -586,10 +587,17 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
             scratch = StepWork(force, moment, rhs, vflat, cth[i], sth[i])
             if implicit:
                 jac = JacobianState(lu[i], kband[i], jvec[i], jmeta[i])
-                taken = implicit_step(
-                    state, leg, par[i], free_length, root, vlat, h, normal[i], out[i], scratch, jac, max_age, newton,
-                    saved, roots,
-                )  # fmt: skip
+                if newton <= 1:  # the linearly implicit step, called directly (one call's arguments fewer)
+                    implicit_once(
+                        state, leg, par[i], free_length, root, vlat, h, normal[i], out[i], scratch, jac, max_age, 0,
+                        saved[0],
+                    )  # fmt: skip
+                    taken = 1
+                else:
+                    taken = implicit_step(
+                        state, leg, par[i], free_length, root, vlat, h, normal[i], out[i], scratch, jac, max_age,
+                        newton, saved, roots,
+                    )  # fmt: skip
                 # a step retaken as m shorter ones answers through its last: the leg's velocities by z du, its
                 # positions by h / m z du, the torso by the last one's reaction change over 1 / m of the step
                 if answering:
