@@ -226,7 +226,7 @@ def tendon_jacobian(pos, cth, sth, theta_root, tension, offset, par, scale, band
     grad_l[3 * (na - 1) + 2] += offset
 
 
-@njit(cache=True, allocates=False, inline='always')
+@njit(cache=True, allocates=False, inline="always")
 def conservative_forces(
     pos,
     theta,
