@@ -332,8 +332,9 @@ def step_symplectic(state, leg, par, free_length, root, h, n_steps, normal, out)
 def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work, jac, max_age, correction, vstart):
     """One linearly implicit Euler step, W (M - h^2 K - h C) dv = h F(x, v) - h^2 K v, v' = v + dv.
 
-    Arguments as :func:`symplectic_once` (``work.cth``/``sth`` are set from theta here: numba
-    vectorises that loop, which costs less than turning them); ``jac`` is the :class:`JacobianState`.
+    Arguments as :func:`symplectic_once` (``work.cth``/``sth`` are set from theta here: one libm
+    ``sincos`` an element, not vectorised without SVML, about a tenth of the plant's time under
+    ``perf``; turning them instead would change the bits); ``jac`` is the :class:`JacobianState`.
     K and C are the Jacobians of every load (elasticity, tendon, contact, friction, damping); the tendon adds a
     rank-one term to K, handled by Sherman-Morrison around the banded solve. The root
     node's rows are rows of the identity (its velocity is prescribed). ``work.rhs`` and
