@@ -590,6 +590,13 @@ def with_setting(cfg: Any, path: str, value: float) -> Any:
     return dataclasses.replace(cfg, **{head: new})
 
 
+def with_settings(cfg: Any, values: dict[str, float]) -> Any:
+    """``cfg`` with each setting of ``values`` (dotted path: value) set by :func:`with_setting`."""
+    for path, value in values.items():
+        cfg = with_setting(cfg, path, value)
+    return cfg
+
+
 def setting_unit(cfg: Any, path: str) -> str:
     """The unit a setting's schema declares (``num_field``'s ``unit``; "" where none, for a ratio, or where
     ``path`` is not in ``cfg``'s schema)."""

@@ -583,21 +583,22 @@ def test_an_accuracy_case_runs_with_its_own_controller_settings_and_leaves_the_c
 
 def test_the_stability_bench_varies_the_model_and_the_step_it_names_and_reads_a_divergence_as_a_result():
     from slotexp.bench import stability
+    from slotexp.config import with_settings
 
     cfg = load("plant=cosserat")
-    model = stability.with_settings(cfg, dict(stability.MODELS)["mu 1.5, E 4e6, c 5"])
+    model = with_settings(cfg, dict(stability.MODELS)["mu 1.5, E 4e6, c 5"])
     assert (model.robot.contact.friction, model.robot.leg.youngs_modulus, model.robot.leg.damping_per_s) == (
         1.5,
         4.0e6,
         5.0,
     )
     assert model.robot.leg.length == cfg.robot.leg.length and model.sim == cfg.sim  # nothing else moved
-    run = stability.with_settings(model, {**dict(stability.SETTINGS)["1 ms, newton 8"], "plant.retakes": 0})
+    run = with_settings(model, {**dict(stability.SETTINGS)["1 ms, newton 8"], "plant.retakes": 0})
     assert (run.sim.dt, run.plant.jacobian_age, run.plant.newton, run.plant.retakes) == (1e-3, 1, 8, 0)
     assert isinstance(run.plant.newton, int) and isinstance(run.sim.dt, float)  # each setting keeps its type
-    kept = stability.with_settings(model, dict(stability.SETTINGS)["default step"])
+    kept = with_settings(model, dict(stability.SETTINGS)["default step"])
     assert kept.sim == cfg.sim and kept.plant == cfg.plant
     # soft legs without retakes blow up while being set down: a row, not an error
-    result = stability._play(stability.with_settings(model, dict(stability.SETTINGS)["default step, no retakes"]))
+    result = stability._play(with_settings(model, dict(stability.SETTINGS)["default step, no retakes"]))
     assert result["ran_to_end"] is False
     assert 0.0 < result["diverged_at_s"] < 0.1

@@ -17,7 +17,7 @@ import re
 import time
 from pathlib import Path
 
-from ..config import SlotConfig, with_setting
+from ..config import SlotConfig, with_settings
 from ..errors import DivergenceError
 from ..locomotion.schedules import play
 from . import BenchRow, register
@@ -45,13 +45,6 @@ SETTINGS = (
         for dt in (1e-3, 5e-3, 1e-2)
     ),
 )
-
-
-def with_settings(cfg: SlotConfig, values: dict[str, float]) -> SlotConfig:
-    """``cfg`` with each setting of ``values`` (config path: value) replaced."""
-    for path, value in values.items():
-        cfg = with_setting(cfg, path, value)
-    return cfg
 
 
 def _play(cfg: SlotConfig) -> dict:

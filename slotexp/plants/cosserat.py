@@ -462,7 +462,10 @@ class CosseratPlant:
                 last,
             )
             if self.implicit and not self._retaking:  # the retakes were turned off: say what they would do
-                message += ", or let the plant take a diverging period again by backward Euler (plant.retakes=4)"
+                retakes = CosseratPlantConfig().retakes  # the schema's default
+                message += (
+                    f", or let the plant take a diverging period again by backward Euler (plant.retakes={retakes})"
+                )
             raise DivergenceError(message)
 
     def apply_impulse(self, linear: np.ndarray, angular: np.ndarray) -> None:
