@@ -49,6 +49,13 @@ def test_static_friction_is_refused_where_the_symplectic_step_would_ignore_it():
     assert load("plant=cosserat", "robot.contact.static_friction=0.2").robot.contact.static_friction == 0.2
 
 
+def test_a_solved_friction_is_refused_for_the_symplectic_step_which_solves_its_own():
+    with pytest.raises(ConfigError, match="plant.friction is the implicit step's") as exc:
+        load("plant=cosserat", "plant.integrator=symplectic", "plant.friction=solved")
+    assert "\n" not in str(exc.value)
+    assert load("plant=cosserat", "plant.friction=solved").plant.friction == "solved"
+
+
 def test_stage_cost_is_the_papers_weights_times_1000():
     cfg = load()
     x = np.zeros(12)

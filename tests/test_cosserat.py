@@ -156,12 +156,17 @@ def test_a_push_between_the_sliding_and_the_static_friction_slides_a_robot_only_
     assert 0.0 < shift["0.25"] < 5e-3  # measured 1.6 mm, and 1.6 mm at 5e-5 s
 
 
-@pytest.mark.parametrize("step", [[], ["sim.dt=5e-3", "plant.newton=8"]], ids=["default", "5e-3 newton"])
+@pytest.mark.parametrize(
+    "step",
+    [[], ["sim.dt=5e-3", "plant.newton=8"], ["plant.friction=solved"], ["plant.friction=solved", "sim.dt=1e-3"]],
+    ids=["default", "5e-3 newton", "solved", "solved 1 ms"],
+)
 def test_a_sliding_robot_is_braked_by_at_most_mu_m_g_against_its_slip(step):
     # Released sliding forwards at 0.1 m/s: only friction acts sideways, so the momentum it loses in 10 ms is
     # the friction impulse. The feet slip at 45 deg to their legs; box-shaped friction (per axis) braked it
     # with sqrt(2) mu M g, isotropic friction with at most mu M g (measured 0.96), straight against the slip.
-    # In two backward Euler steps of 5 ms the same: the friction at each step's end never exceeds the cone.
+    # In two backward Euler steps of 5 ms the same: the friction at each step's end never exceeds the cone; and
+    # with the friction along the legs' planes solved at each step's end (plant.friction=solved).
     cfg = load("plant=cosserat", *step)
     robot = build_robot(cfg.robot)
     x0 = nominal_state(robot)
@@ -532,13 +537,15 @@ def test_a_sideways_push_below_friction_bends_compliant_legs_while_their_feet_st
     assert 0.0 < shift["rigid"] < shift["bending"] < 1e-3
 
 
-def test_standing_feet_rest_at_the_default_step():
+@pytest.mark.parametrize("friction", ["secant", "solved"])
+def test_standing_feet_rest_at_the_default_step(friction):
     # The robot stands on 80 deg tendons at mu 0.6, its feet's friction far from mu N. Their contact nodes
     # must rest, not chatter: a sliding node's friction is taken at its secant slope, so the step can stop a
     # slip but never throw it back. Measured at 2e-4 s: 0.5 mm/s rms along the leg's plane (converged,
     # 5e-5 s: 0.1); with the tangent slope (zero along a straight slip) it was 21.5 mm/s, the friction
-    # saturated at mu N at every step.
-    cfg, plant = _plant("robot.contact.friction=0.6")
+    # saturated at mu N at every step. Solved at the step's end (the law's tangent in a Newton iteration to
+    # convergence, not one linearisation) they rest too.
+    cfg, plant = _plant("robot.contact.friction=0.6", f"plant.friction={friction}")
     assert cfg.sim.dt == 2e-4
     for _ in range(30):
         plant.step(TendonCommand(np.full(4, 80.0)), 1 / 30)

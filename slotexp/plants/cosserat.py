@@ -36,7 +36,7 @@ from ..soft.coupled import (
 )
 from ..soft.integrators import J_AGE, J_OFFSET, divergence_message, stable_dt
 from ..soft.loads import pair_free_length, rest_free_length
-from ..soft.params import O_F, O_FL, O_N, O_T, OUT, P_TPAIR, leg_params
+from ..soft.params import O_F, O_FL, O_N, O_T, OUT, P_FSOLVE, P_TPAIR, leg_params
 from ..soft.rod import LegModel, build_leg, lateral_stiffness
 from ..soft.servo import RPM_TO_RAD_S
 from . import PLANTS, TendonCommand
@@ -83,6 +83,10 @@ class CosseratPlantConfig(PlantConfig):
     # implicit step: a control period whose steps diverge is taken again from its start by backward Euler
     # (RETAKE_NEWTON passes), at half the step each further time it diverges, up to this many times (0: stop)
     retakes: int = num_field(4, lo=0, hi=10, unit="retakes")
+    # implicit step: the feet's friction along the legs' planes, linearised at its secant slope at the step's
+    # start (secant), or solved at the step's end through the step's compliance (solved: a sliding or sticking
+    # foot then answers its load as its own mass does, not as h mu N / |v| more; slotexp/soft/friction.py)
+    friction: str = choice_field("secant", "secant", "solved")
 
 
 @PLANTS.register()
@@ -104,6 +108,11 @@ class CosseratPlant:
             )
         if symplectic and cfg.plant.newton > 1:
             raise ConfigError("plant.newton is the implicit step's: drop it, or use plant.integrator=implicit")
+        if symplectic and cfg.plant.friction == "solved":
+            raise ConfigError(
+                "plant.friction is the implicit step's (the symplectic step solves each node's friction "
+                "itself): drop it, or use plant.integrator=implicit"
+            )
         if cfg.robot.leg.model == "paper" and not symplectic:
             raise ConfigError(
                 "robot.leg.model=paper has no Jacobian for the implicit step: add plant.integrator=symplectic "
@@ -161,6 +170,7 @@ class CosseratPlant:
         self.free0 = np.full(4, rest_free_length(m, self.par[0], cfg.robot.tendon.slack))
         if cfg.robot.tendon.antagonist:
             self.par[:, P_TPAIR] = pair_free_length(m, self.par[0], self.free0[0])
+        self.par[:, P_FSOLVE] = 1.0 if cfg.plant.friction == "solved" else 0.0
         self.servo = np.zeros(4)  # servo (tendon) angle, rad
         self.servo_cmd = np.zeros(4)
         sc = cfg.robot.servo

@@ -486,7 +486,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
     to both, so without ground and gravity the robot's momentum holds to round-off.
 
     ``work.cth``/``sth`` (4, E) are each leg's directors, kept current by the symplectic step;
-    ``work.lu``, ``kband``, ``jvec``, ``jmeta`` each leg's Jacobian state for the implicit step,
+    ``work.lu``, ``kband``, ``jvec``, ``jmeta``, ``fwork`` each leg's Jacobian state for the implicit step,
     whose factorisation serves up to ``settings.max_age`` steps (:func:`implicit_once`).
 
     ``robot.eta`` (4, N) is each node's offset across its leg's plane (:func:`_sync_legs`).
@@ -501,7 +501,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
     """
     torso, momentum, pos, eta, vel, theta, omega, par, servo, servo_cmd, free0, prev_corner, prev_u = robot[:13]
     normal, out, reaction, belly, lateral = robot[13:]
-    force, moment, rhs, vflat, cth, sth, lu, kband, jvec, jmeta = work
+    force, moment, rhs, vflat, cth, sth, lu, kband, jvec, jmeta, fwork = work
     torso_mass, inertia, gravity, corners, yaw, rest_theta0 = torso_model
     servo_par, pulley, mu, v_eps, implicit, max_age, newton, belly_points, belly_par, k_lat = settings
     mass = leg.mass
@@ -586,7 +586,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
             state = LegState(pos[i], vel[i], theta[i], omega[i])
             scratch = StepWork(force, moment, rhs, vflat, cth[i], sth[i])
             if implicit:
-                jac = JacobianState(lu[i], kband[i], jvec[i], jmeta[i])
+                jac = JacobianState(lu[i], kband[i], jvec[i], jmeta[i], fwork[i])
                 if newton <= 1:  # the linearly implicit step, called directly (one call's arguments fewer)
                     implicit_once(
                         state, leg, par[i], free_length, root, vlat, h, normal[i], out[i], scratch, jac, max_age, 0,
@@ -786,7 +786,7 @@ def _work_row(works, b):
     """Robot ``b``'s scratch of a batch's stacked :class:`Work` (views)."""
     return Work(
         works.force[b], works.moment[b], works.rhs[b], works.vflat[b], works.cth[b], works.sth[b],
-        works.lu[b], works.kband[b], works.jvec[b], works.jmeta[b],
+        works.lu[b], works.kband[b], works.jvec[b], works.jmeta[b], works.fwork[b],
     )  # fmt: skip
 
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import ConfigError, DivergenceError
 from ..jit import njit
+from .friction import friction_work, solve_friction
 from .loads import (
     conservative_forces,
     contact_force,
@@ -51,6 +52,7 @@ from .params import (
     O_TS,
     OUT,
     P_C,
+    P_FSOLVE,
     P_G,
     P_GROUND,
     P_K,
@@ -110,6 +112,13 @@ def _normal_force(pos, vel, i, ground, k_c, d_c):
     if not ground or pos[i, 1] >= 0.0:
         return 0.0
     return max(0.0, -k_c * pos[i, 1] - d_c * vel[i, 1])
+
+
+@njit(cache=True, allocates=False)
+def _normal_rows(i, h, k_c, d_c, kband, band):
+    """A pressed node's normal force in the step's matrix: h^2 k_c into ``kband``, h d_c into ``band``."""
+    kband[3 * i + 1, 4] += h * h * k_c
+    band[3 * i + 1, 4] += h * d_c
 
 
 @njit(cache=True, allocates=False)
@@ -176,12 +185,15 @@ class StepWork(NamedTuple):
 
 class JacobianState(NamedTuple):
     """The implicit step's factored Jacobian, kept between steps (:func:`implicit_once`): the banded LU of
-    W, h^2 K, the tendon's W^-1 u and grad L, and the regimes and counters (``J_*``)."""
+    W, h^2 K, the tendon's W^-1 u and grad L then (``plant.friction=solved``) each pressed node i's column
+    W^-1 e_x,i in row 2 + i, the regimes and counters (``J_*``), and the friction solve's scratch
+    (:func:`slotexp.soft.friction.friction_work`)."""
 
     lu: np.ndarray
     kband: np.ndarray
     jvec: np.ndarray
     jmeta: np.ndarray
+    fwork: np.ndarray
 
 
 def step_work(n_nodes: int, legs: int | None = None) -> StepWork:
@@ -350,6 +362,11 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     consistent, since F is always current; the structural changes that would make it
     unstable refresh them at once).
 
+    With ``par[P_FSOLVE]`` (``plant.friction=solved``) W leaves out the friction along the plane: the pressed
+    nodes' friction is solved at the step's end through W's columns at them, kept with the factorisation
+    (:mod:`slotexp.soft.friction`), and a node's regime is only whether it is pressed. Without it the friction
+    enters at its value at the step's start and its secant slope (:func:`slotexp.soft.loads.friction_slope`).
+
     With ``correction`` the pass is a Newton correction of a step already taken (:func:`implicit_step`):
     the state is the step's end (x_k = x_0 + h v_k, ``root`` the root at the step's end), ``vstart`` (3N - 1)
     the velocities at the step's start, and the pass solves W delta = h F(x_k, v_k) - M (v_k - v_0) for
@@ -360,12 +377,13 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     pos, vel, theta, omega = state
     rest_pos, _, l0, voronoi, dtheta0, ea, ga, ei, mass, inertia = leg
     force, moment, rhs, vflat, cth, sth = work
-    lu, kband, jvec, jmeta = jac
+    lu, kband, jvec, jmeta, fwork = jac
     n = pos.shape[0]
     n_el = theta.shape[0]
     nd = 3 * n - 1
     c, k_c, d_c, mu, v_eps, ground, mu_s, v_s = dissipative_params(par)
     mu_top = max(mu, mu_s)
+    solved = par[P_FSOLVE] > 0.5  # the friction along the plane solved at the step's end (slotexp.soft.friction)
     h2 = h * h
     _set_root(pos, vel, root)
     tension, m_root, offset = conservative_forces(
@@ -428,10 +446,14 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
             continue
         nrm, fx, regime = 0.0, 0.0, 0
         if ground and pos[i, 1] < 0.0:
-            nrm, fx, _, regime = contact_force(
-                -pos[i, 1], vel[i, 0], vel[i, 1], vlat[i], k_c, d_c, mu, v_eps, mu_s, v_s
-            )
-            rhs[3 * i] += h * fx
+            if solved:  # only whether the node is pressed: its friction is solved at the step's end (below)
+                nrm = _normal_force(pos, vel, i, ground, k_c, d_c)
+                regime = 1 if nrm > 0.0 else 0
+            else:
+                nrm, fx, _, regime = contact_force(
+                    -pos[i, 1], vel[i, 0], vel[i, 1], vlat[i], k_c, d_c, mu, v_eps, mu_s, v_s
+                )
+                rhs[3 * i] += h * fx
             rhs[3 * i + 1] += h * nrm
         normal[i] = nrm
         total_n += nrm
@@ -455,8 +477,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
                 # Newton on the normal force; on the friction (its normal force held) the secant at v_k, whose
                 # iteration is a majorise-minimise one on the friction's convex dissipation: it cannot cycle
                 if _normal_force(pos, vel, i, ground, k_c, d_c) > 0.0:
-                    kband[3 * i + 1, 4] += h2 * k_c
-                    lu[3 * i + 1, 4] += h * d_c
+                    _normal_rows(i, h, k_c, d_c, kband, lu)
                 if normal[i] > 0.0:
                     lu[3 * i, 4] += h * _friction_newton_slope(
                         vel[i, 0], vlat[i], normal[i], mu, v_eps, mu_s, v_s, correction <= TANGENT_PASSES
@@ -464,7 +485,11 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
                 jmeta[i] = -1.0  # the next step's first pass factors afresh
                 continue
             regime = 0
-            if ground and pos[i, 1] < 0.0:
+            if solved:
+                if _normal_force(pos, vel, i, ground, k_c, d_c) > 0.0:
+                    _normal_rows(i, h, k_c, d_c, kband, lu)
+                    regime = 1
+            elif ground and pos[i, 1] < 0.0:
                 nrm, _, g_x, regime = contact_force(
                     -pos[i, 1], vel[i, 0], vel[i, 1], vlat[i], k_c, d_c, mu, v_eps, mu_s, v_s
                 )
@@ -493,6 +518,14 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
             for d in range(nd):
                 gz += g[d] * smu[d]
             jmeta[i_gz] = gz
+        if solved:  # each pressed node's column of W^-1 at its along-plane velocity, for the friction solve
+            for i in range(1, n):
+                if jmeta[i] == 1.0:
+                    col = jvec[2 + i]
+                    for d in range(nd):
+                        col[d] = 0.0
+                    col[3 * i] = 1.0
+                    _solve_w(lu, jvec, jmeta[i_gz], taut, col)
         jmeta[i_cable] = cable
         jmeta[i_step] = h
         jmeta[i_age] = 0.0
@@ -515,6 +548,8 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     rhs[0] = 0.0
     rhs[1] = 0.0
     _solve_w(lu, jvec, jmeta[i_gz], taut, rhs)
+    if solved and not correction:
+        total_f, _ = solve_friction(jvec, jmeta, vflat, rhs, normal, vlat, h, mu, v_eps, mu_s, v_s, fwork)
     change = 0.0
     for d in range(2, nd):
         vflat[d] += rhs[d]
@@ -681,7 +716,7 @@ def root_response(state, leg, par, h, jac, zcols, response):
     """
     pos, _, theta, _ = state
     _, _, _, voronoi, _, _, _, ei, mass, inertia = leg
-    lu, kband, jvec, jmeta = jac
+    lu, kband, jvec, jmeta, _ = jac
     n = pos.shape[0]
     n_el = theta.shape[0]
     nd = 3 * n - 1
@@ -744,7 +779,13 @@ def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:
     lead = () if legs is None else (legs,)
     meta = np.zeros(lead + (n_nodes + J_OFFSET + 1,))
     meta[..., n_nodes + J_AGE] = np.inf  # refresh at the first step
-    return JacobianState(np.zeros(lead + (nd, 9)), np.zeros(lead + (nd, 9)), np.zeros(lead + (2, nd)), meta)
+    return JacobianState(
+        np.zeros(lead + (nd, 9)),
+        np.zeros(lead + (nd, 9)),
+        np.zeros(lead + (2 + n_nodes, nd)),
+        meta,
+        friction_work(n_nodes, lead),
+    )
 
 
 @njit(cache=True)

@@ -380,6 +380,26 @@ def friction_slope(v, v_other, nrm, mu, v_eps, mu_s, v_s):
 
 
 @njit(cache=True, allocates=False)
+def friction_tangent(v, v_other, nrm, mu, v_eps, mu_s, v_s):
+    """dF/dv of :func:`coulomb_friction`'s component along ``v`` (``v_other`` the slip's other component, held):
+    the law's own slope, which :mod:`slotexp.soft.friction`'s Newton iteration takes.
+
+    With s = |(v, v_other)|, m = max(s, v_eps) and F = -mu(s) N v / m: below the slip velocity
+    -mu(s) N / m - mu'(s) N v^2 / (s m); sliding, -mu(s) N v_other^2 / s^3 - mu'(s) N v^2 / (s m), zero
+    along a straight slip of plain Coulomb friction. The Stribeck fall of a static coefficient
+    (mu' < 0) can make it positive: the law is then not monotone.
+    """
+    speed = np.sqrt(v * v + v_other * v_other)
+    slope_over_s = 0.0  # mu'(s) / s
+    if mu_s > mu:
+        slope_over_s = -2.0 * (mu_s - mu) * np.exp(-(speed / v_s) * (speed / v_s)) / (v_s * v_s)
+    mu_now = friction_coefficient(speed, mu, mu_s, v_s)
+    if speed < v_eps:
+        return -nrm * (mu_now + slope_over_s * v * v) / v_eps
+    return -nrm * (mu_now * v_other * v_other / (speed * speed) + slope_over_s * v * v) / speed
+
+
+@njit(cache=True, allocates=False)
 def friction_level(slope, nrm, mu, v_eps):
     """The Jacobian level of a sliding node's friction slope: 0 for the sticking slope mu N / v_eps, k for
     slopes in (4^-(k+1), 4^-k] of it, -1 below the last level (the slope is left out). ``mu`` is the

@@ -48,6 +48,7 @@ PAR = (
     "tendon_route",
     "tendon_guide_x",
     "tendon_guide_z",
+    "friction_solved",
 )
 (P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFX, P_TFZ, P_TM, P_NA, P_PAPER, P_KR) = range(16)
 P_MUS, P_VS = 16, 17  # the feet's friction at rest and the speed over which it falls to mu (robot.contact)
@@ -56,6 +57,10 @@ P_TPAIR = 18
 # robot.tendon.routing: 0 the cable along the leg at its offset, 1 a bowstring from a guide on the torso to the anchor;
 # the guide's position relative to the root node in the root's frame (m: along the root's tangent, and its normal up)
 P_TROUTE, P_TGX, P_TGZ = 19, 20, 21
+# plant.friction: 1 the implicit step solves the pressed nodes' friction along the plane at the step's end
+# (slotexp.soft.friction), 0 it takes the friction's secant slope at the step's start (a plant setting: the
+# coupled plant sets it, the clamped leg's statics leave it 0)
+P_FSOLVE = 22
 # friction: along the leg's plane (the leg's own step); friction_lateral: across it (the coupled plant's torso step)
 # tendon_side: which cable pulls (1: below the centreline, -1: above it, robot.tendon.antagonist; 0: neither)
 OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged", "friction_lateral", "tendon_side")
