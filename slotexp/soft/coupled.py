@@ -54,8 +54,8 @@ from .integrators import (
     root_response,
     symplectic_once,
 )
-from .loads import coulomb_friction, friction_slope
-from .params import O_DIV, O_FL, O_FX, O_FZ, O_M, O_T, O_TS, P_MUS, P_VS
+from .loads import coulomb_friction, friction_slope, friction_tangent
+from .params import O_DIV, O_FL, O_FX, O_FZ, O_M, O_T, O_TS, P_FSOLVE, P_MUS, P_VS
 from .servo import servo_step
 
 __all__ = ["TorsoModel", "Settings", "Robot", "Work", "new_work", "stacked", "row", "coupled_steps", "batch_steps"]
@@ -395,6 +395,100 @@ def _series_spring(k_lat, deflection, slope_sum, h):
     return k_lat * h / denominator, k_lat * deflection / denominator
 
 
+LATERAL_ITERATIONS = 30  # Newton iterations at most for the friction across the planes (plant.friction=solved)
+
+
+@njit(cache=True, allocates=False)
+def _lateral_residual(system, rhs6, x, pos, vel, normal, par, axes, p2, mu, v_eps, h, g, across):
+    """G(x) = system x - rhs6 - h sum_k F_k(j_k . x) j_k over the pressed nodes, each one's friction across its
+    leg's plane at the slip the torso's velocity ``x`` gives it (its slip along the plane after its leg's step
+    held); ``across`` (legs,) receives each leg's friction sum. Returns |G|^2."""
+    for a in range(6):
+        acc = -rhs6[a]
+        for b in range(6):
+            acc += system[a, b] * x[b]
+        g[a] = acc
+    for i in range(pos.shape[0]):
+        lx, ly, w0 = axes[i, 0], axes[i, 1], axes[i, 2]
+        lat_v = lx * x[0] + ly * x[1]
+        turn = lx * x[4] - ly * x[3]
+        total = 0.0
+        for k in range(1, pos.shape[1]):
+            nrm = normal[i, k]
+            if nrm <= 0.0:
+                continue
+            z = pos[i, k, 1] - p2
+            w = w0 + pos[i, k, 0]
+            _, f = coulomb_friction(
+                vel[i, k, 0], lat_v + z * turn + w * x[5], nrm, mu, v_eps, par[i, P_MUS], par[i, P_VS]
+            )
+            total += f
+            hf = h * f
+            g[0] -= hf * lx
+            g[1] -= hf * ly
+            g[3] += hf * ly * z
+            g[4] -= hf * lx * z
+            g[5] -= hf * w
+        across[i] = total
+    merit = 0.0
+    for a in range(6):
+        merit += g[a] * g[a]
+    return merit
+
+
+@njit(cache=True, allocates=False)
+def _solve_lateral(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_eps, h, scratch, across):
+    """The torso's step with the pressed nodes' friction across the planes taken at its end (plant.friction=solved).
+
+    Newton on G(xi_new) = 0 (:func:`_lateral_residual`) from the guess in ``xi_new``; each iteration's matrix is
+    ``system`` - h sum_k t_k j_k j_k^T, t_k the law's tangent (<= 0 for plain friction, so positive definite), and a
+    backtracking line search keeps the residual falling. ``scratch`` (10, 6): four vectors and the 6 x 6 matrix;
+    ``across`` (legs,) receives each leg's friction across its plane at the end."""
+    g, step, trial, gt = scratch[0], scratch[1], scratch[2], scratch[3]
+    hess = scratch[4:10]
+    merit = _lateral_residual(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_eps, h, g, across)
+    for _ in range(LATERAL_ITERATIONS):
+        for a in range(6):
+            for b in range(6):
+                hess[a, b] = system[a, b]
+        for i in range(pos.shape[0]):
+            lx, ly, w0 = axes[i, 0], axes[i, 1], axes[i, 2]
+            lat_v = lx * xi_new[0] + ly * xi_new[1]
+            turn = lx * xi_new[4] - ly * xi_new[3]
+            for k in range(1, pos.shape[1]):
+                nrm = normal[i, k]
+                if nrm <= 0.0:
+                    continue
+                z = pos[i, k, 1] - p2
+                w = w0 + pos[i, k, 0]
+                slip = lat_v + z * turn + w * xi_new[5]
+                t = -h * friction_tangent(slip, vel[i, k, 0], nrm, mu, v_eps, par[i, P_MUS], par[i, P_VS])
+                step[0], step[1], step[2], step[3], step[4], step[5] = lx, ly, 0.0, -ly * z, lx * z, w  # j_k
+                for a in range(6):
+                    for b in range(6):
+                        hess[a, b] += t * step[a] * step[b]
+        for a in range(6):
+            gt[a] = -g[a]
+        solve_spd(hess, gt, step)
+        lam = 1.0
+        while True:
+            for a in range(6):
+                trial[a] = xi_new[a] + lam * step[a]
+            value = _lateral_residual(system, rhs6, trial, pos, vel, normal, par, axes, p2, mu, v_eps, h, gt, across)
+            if value < (1.0 - 1e-4 * lam) * merit or lam < 1e-6:
+                break
+            lam *= 0.5
+        size = 0.0
+        for a in range(6):
+            size = max(size, abs(lam * step[a]))
+            xi_new[a] = trial[a]
+            g[a] = gt[a]
+        merit = value
+        if size < 1e-9 * v_eps:  # m/s and rad/s: far below anything the step resolves
+            break
+    _lateral_residual(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_eps, h, g, across)
+
+
 @njit(cache=True, allocates=False)
 def _root_map(ux, uy, rcx, rcy, rcz, jmap):
     """The map J (3, 6) from the torso's velocity (v, w world) to a leg root's (v_s along u, v_z, omega about
@@ -537,6 +631,11 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
     rhs6 = np.empty(6)
     xi = np.empty(6)  # torso velocity (v, w world) at the step's start
     xi_new = np.empty(6)
+    # plant.friction=solved with rigid patches (no series spring): the friction across the planes at the step's end
+    solve_across = par[0, P_FSOLVE] > 0.5 and k_lat <= 0.0 and not answering
+    axes = np.zeros((n_legs, 3))  # each leg's (lx, ly, w0): its nodes' j vectors (_lateral_residual)
+    lateral_scratch = np.zeros((10, 6))
+    across_end = np.zeros(n_legs)
     for step in range(n_steps + 1):
         rot = quat_to_rot(torso[3:7])
         _sync_legs(torso, momentum, rot, corners, cy, sy, pos, eta, vel, omega, mass, inertia_el, prev_corner, prev_u)
@@ -629,6 +728,17 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
             # With a compliant patch each node's F0 + c v and c pass through the series spring first.
             across = 0.0
             csum = gsum = 0.0
+            if solve_across:  # taken at the step's end, with the torso's (_solve_lateral)
+                axes[i, 0], axes[i, 1], axes[i, 2] = lx, ly, w0
+                reaction[i, 0] = fwx
+                reaction[i, 1] = fwy
+                reaction[i, 2] = fwz
+                reaction[i, 3] = mwx
+                reaction[i, 4] = mwy
+                reaction[i, 5] = 0.0
+                for k in range(1, n_nodes):
+                    slopes[i, k] = 0.0
+                continue
             for k in range(1, n_nodes):
                 f0s[k] = 0.0
                 slopes[i, k] = 0.0
@@ -724,6 +834,22 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
                 dxi[a] = xi_new[a] - xi[a]
             for i in range(n_legs):
                 _answer(jroot[i], responses[i], dxi, du[i], load, out[i], reaction[i])
+        elif solve_across:
+            for a in range(6):
+                xi_new[a] = xi[a]
+            _solve_lateral(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_eps, h, lateral_scratch,
+                           across_end)  # fmt: skip
+            for i in range(n_legs):
+                out[i, O_FL] = across_end[i]
+                reaction[i, 0] += across_end[i] * axes[i, 0]
+                reaction[i, 1] += across_end[i] * axes[i, 1]
+            # the friction's force at the step's end, sum_k F_k j_k, into the load: from G = system xi_new - rhs6 -
+            # h sum F_k j_k, the residual the solve left (lateral_scratch[0])
+            for a in range(6):
+                acc = 0.0
+                for b in range(6):
+                    acc += system[a, b] * xi_new[b]
+                load[a] += (acc - rhs6[a] - lateral_scratch[0, a]) / h
         else:
             solve_spd(system, rhs6, xi_new)
         # the impulse applied, friction at the velocity it ends with: h load - h C xi_new
