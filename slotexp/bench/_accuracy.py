@@ -120,13 +120,20 @@ class _TraceSink:
 
 
 def with_plant(
-    cfg: SlotConfig, integrator: str, dt: float, jacobian_age: int | None = None, newton: int = 1
+    cfg: SlotConfig,
+    integrator: str,
+    dt: float,
+    jacobian_age: int | None = None,
+    newton: int = 1,
+    friction: str | None = None,
 ) -> SlotConfig:
-    """``cfg`` with the soft plant's integrator, step, (if given) Jacobian age and implicit passes replaced."""
+    """``cfg`` with the soft plant's integrator, step, (if given) Jacobian age, implicit passes and (if given) the
+    implicit step's friction (``plant.friction``) replaced."""
     age = cfg.plant.jacobian_age if jacobian_age is None else jacobian_age
+    law = cfg.plant.friction if friction is None else friction
     return dataclasses.replace(
         cfg,
-        plant=dataclasses.replace(cfg.plant, integrator=integrator, jacobian_age=age, newton=newton),
+        plant=dataclasses.replace(cfg.plant, integrator=integrator, jacobian_age=age, newton=newton, friction=law),
         sim=dataclasses.replace(cfg.sim, dt=dt),
     )
 

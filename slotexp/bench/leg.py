@@ -27,7 +27,10 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
   reference after the start-up. The implicit step at half ``REFERENCE_DT`` shows how far
   the reference itself is converged: the yardstick's resolution. Where that half step is
   outside the tolerance, the case's rows carry no verdict (``within_tolerance`` None,
-  ``resolved`` False).
+  ``resolved`` False). The rows marked ``friction solved`` (``plant.friction=solved``:
+  the feet's friction solved at the step's end, :mod:`slotexp.soft.friction`) are each
+  judged against that law's own reference and half step, at ``SOLVED_STEPS``; the leg rows
+  and a second set of batch rows (at ``SOLVED_DEFAULT_DT``) time the same law.
 
 ``ratio_vs_baseline`` for leg rows = PyElastica's time per step / this row's
 (>1 is faster than PyElastica); without PyElastica the baseline is ``symplectic``.
@@ -46,6 +49,7 @@ from ..config import SlotConfig
 from ..errors import DivergenceError
 from ..robot import leg_root_z
 from ..soft.integrators import LegSim, stable_dt
+from ..soft.params import P_FSOLVE
 from ..soft.statics import clamped_leg, set_tendon
 from . import BenchRow, register
 from ._accuracy import CASES, compare, real_time_factor, run_case, with_plant, within
@@ -73,13 +77,20 @@ ACCURACY_SETTINGS = (
     (5e-3, 1, 8),
     (1e-2, 1, 8),
 )
+# the implicit step with the feet's friction solved at its end (plant.friction=solved, slotexp/soft/friction.py),
+# at the configured Jacobian age: each row against the same law's reference at REFERENCE_DT, with its own half step
+SOLVED_STEPS = (2e-4, 5e-4, 1e-3, 2e-3)
+SOLVED_DEFAULT_DT = 5e-4  # s: the largest of them the yardstick admits on every case it resolves (measured)
 
 
-def _loaded_leg(cfg: SlotConfig, jacobian_age: int = 1, newton: int = 1) -> LegSim:
+def _loaded_leg(cfg: SlotConfig, jacobian_age: int = 1, newton: int = 1, solved: bool = False) -> LegSim:
+    """The robot's leg at its standing root height, tendon at 80 deg, foot on the ground with friction (``solved``:
+    the implicit step solves that friction at its end, plant.friction=solved)."""
     sim = clamped_leg(cfg, root_height=cfg.gait.height + leg_root_z(cfg.robot))
     set_tendon(sim, 80.0, cfg.robot.leg.pulley_radius)
     sim.jacobian_age = jacobian_age
     sim.newton = newton
+    sim.par[P_FSOLVE] = 1.0 if solved else 0.0
     return sim
 
 
@@ -97,9 +108,9 @@ def _time_steps(sim: LegSim, h: float, integrator: str, blocks: int, per_block: 
 
 
 def _tip_after_transient(
-    cfg: SlotConfig, h: float, integrator: str, jacobian_age: int = 1, newton: int = 1
+    cfg: SlotConfig, h: float, integrator: str, jacobian_age: int = 1, newton: int = 1, solved: bool = False
 ) -> np.ndarray:
-    sim = _loaded_leg(cfg, jacobian_age, newton)
+    sim = _loaded_leg(cfg, jacobian_age, newton, solved)
     free = sim.free_length
     sim.free_length = free + cfg.robot.leg.pulley_radius * np.deg2rad(30.0)  # start 30 deg slacker
     sim.step(h, int(round(0.05 / h)), integrator)
@@ -174,17 +185,21 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     h_imp = cfg.sim.dt  # the configured step (plant=cosserat: 1e-4 s)
     age = cfg.plant.jacobian_age
     timings = {}
-    variants = [("symplectic", "symplectic", h_sym, 2000, 1, 1), ("implicit", "implicit", h_imp, 500, age, 1)]
+    variants = [
+        ("symplectic", "symplectic", h_sym, 2000, 1, 1, False),
+        ("implicit", "implicit", h_imp, 500, age, 1, False),
+        ("implicit, friction solved", "implicit", h_imp, 500, age, 1, True),
+    ]
     if age != 1:
-        variants.append(("implicit, Jacobian every step", "implicit", h_imp, 500, 1, 1))
+        variants.append(("implicit, Jacobian every step", "implicit", h_imp, 500, 1, 1, False))
     for h_big in LARGE_STEPS:  # backward Euler by Newton corrections, where the linearly implicit step diverges
-        variants.append((f"implicit, newton {LARGE_STEP_NEWTON}", "implicit", h_big, 20, 1, LARGE_STEP_NEWTON))
-    for label, name, h, per_block, jac_age, newton in variants:
-        leg = _loaded_leg(cfg, jac_age, newton)
+        variants.append((f"implicit, newton {LARGE_STEP_NEWTON}", "implicit", h_big, 20, 1, LARGE_STEP_NEWTON, False))
+    for label, name, h, per_block, jac_age, newton, solved in variants:
+        leg = _loaded_leg(cfg, jac_age, newton, solved)
         leg.step(h, int(round(0.5 / h)), name)  # settle into stance first
         before = leg.factorisations
         key = (label, h)
-        timings[key] = (name, h, jac_age, newton) + _time_steps(leg, h, name, 60, per_block)
+        timings[key] = (name, h, jac_age, newton, solved) + _time_steps(leg, h, name, 60, per_block)
         timed = 1 + 60 * per_block
         timings[key] += ((leg.factorisations - before) / timed if name == "implicit" else float("nan"),)
     h_ref = h_sym / 10
@@ -192,9 +207,9 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     rows: list[BenchRow] = []
     py = _pyelastica_step_us(cfg, h_sym, 20, 200)
     base = float(np.median(py)) if py is not None else float(np.median(timings[("symplectic", h_sym)][4]))
-    for (label, _), (name, h, jac_age, newton, per_step, first, factored) in timings.items():
+    for (label, _), (name, h, jac_age, newton, solved, per_step, first, factored) in timings.items():
         med = float(np.median(per_step))
-        tip_err = float(np.linalg.norm(_tip_after_transient(cfg, h, name, jac_age, newton) - tip_ref))
+        tip_err = float(np.linalg.norm(_tip_after_transient(cfg, h, name, jac_age, newton, solved) - tip_ref))
         extra = {
             "dt_s": h,
             "us_per_simulated_second": med / h * 1e6,
@@ -262,26 +277,50 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
         )
     )
     rows += _batch_rows(cfg)
-    settings = list(
-        dict.fromkeys(("implicit", dt, age if a is None else a, newton) for dt, a, newton in ACCURACY_SETTINGS)
-    )
-    settings.append(("symplectic", h_sym, 1, 1))
+    # the step the accuracy yardstick admits with the friction solved (docs/results/plant.md)
+    rows += _batch_rows(with_plant(cfg, "implicit", SOLVED_DEFAULT_DT, friction="solved"))
+    for law in ("secant", "solved"):
+        rows += _accuracy_rows(cfg, law, h_sym, age)
+    return rows
+
+
+def _accuracy_settings(law: str, h_sym: float, age: int) -> list[tuple[str, float, int, int]]:
+    """(integrator, step, Jacobian age, passes) of one friction law's accuracy rows, its reference's half step last."""
+    if law == "secant":
+        settings = list(
+            dict.fromkeys(("implicit", dt, age if a is None else a, newton) for dt, a, newton in ACCURACY_SETTINGS)
+        )
+        settings.append(("symplectic", h_sym, 1, 1))
+    else:
+        settings = [("implicit", dt, age, 1) for dt in SOLVED_STEPS]
     settings.append(("implicit", REFERENCE_DT / 2, 1, 1))  # the reference's own convergence
+    return settings
+
+
+def _accuracy_rows(cfg: SlotConfig, law: str, h_sym: float, age: int) -> list[BenchRow]:
+    """The closed-loop cases at each setting of the implicit step's friction ``law`` (``plant.friction``), each
+    against that law's own reference at ``REFERENCE_DT``: both laws converge to the same motion as the step goes to
+    zero, and each is judged by how far it is from where it converges."""
+    rows: list[BenchRow] = []
+    suffix = "" if law == "secant" else " friction solved"
     for case in CASES:
-        reference = run_case(with_plant(cfg, "implicit", REFERENCE_DT, 1), case)
+        reference = run_case(with_plant(cfg, "implicit", REFERENCE_DT, 1, 1, law), case)
         case_rows: list[BenchRow] = []
-        for integrator, dt, jac_age, newton in settings:
+        for integrator, dt, jac_age, newton in _accuracy_settings(law, h_sym, age):
             try:
-                trace = run_case(with_plant(cfg, integrator, dt, jac_age, newton), case)
+                trace = run_case(with_plant(cfg, integrator, dt, jac_age, newton, law), case)
             except DivergenceError as err:
-                case_rows.append(BenchRow("accuracy", f"{case.name}, {integrator} dt={dt:.3g}: diverged", math.nan,
-                                          math.nan, 0.0, {"error": str(err)}))  # fmt: skip
+                case_rows.append(BenchRow("accuracy", f"{case.name}, {integrator} dt={dt:.3g}{suffix}: diverged",
+                                          math.nan, math.nan, 0.0, {"error": str(err)}))  # fmt: skip
                 continue
             result = compare(trace, reference, case.judged_from)
-            default = (integrator, dt, jac_age, newton) == (cfg.plant.integrator, cfg.sim.dt, age, cfg.plant.newton)
+            default = (integrator, dt, jac_age, newton, law) == (
+                cfg.plant.integrator, cfg.sim.dt, age, cfg.plant.newton, cfg.plant.friction
+            )  # fmt: skip
             label = f"implicit dt={dt:.3g} age {jac_age}" if integrator == "implicit" else f"{integrator} dt={dt:.3g}"
             if newton > 1:
                 label += f" newton {newton}"
+            label += suffix
             if dt == REFERENCE_DT / 2:
                 label += " (the reference's half step)"
             case_rows.append(
@@ -294,8 +333,9 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
                     {
                         **result,
                         "within_tolerance": within(result),
-                        "reference": f"implicit dt={REFERENCE_DT:g} age 1",
+                        "reference": f"implicit dt={REFERENCE_DT:g} age 1{suffix}",
                         "judged_from_s": case.judged_from,
+                        "friction": law,
                     },
                 )
             )
@@ -322,7 +362,8 @@ def _batch_rows(cfg: SlotConfig) -> list[BenchRow]:
     return [
         BenchRow(
             "batch",
-            f"B={r.robots} robots, {cfg.plant.integrator} dt={cfg.sim.dt:.3g} age {cfg.plant.jacobian_age}",
+            f"B={r.robots} robots, {cfg.plant.integrator} dt={cfg.sim.dt:.3g} age {cfg.plant.jacobian_age}"
+            + (" friction solved" if cfg.plant.friction == "solved" else ""),
             float(np.median(r.step_wall_s)) * 1e6,
             float(np.quantile(r.step_wall_s, 0.99)) * 1e6,
             r.robot_seconds_per_wall_second,
