@@ -6,8 +6,9 @@ must not mistake the step blowing up for a bad model. Each row plays the robot's
 setting and reports whether all ran to the end, where the first failure came, and how many periods
 ``plant.retakes`` took again. The models: the default and the corners of the identification's range (friction
 0.05 and 1.5, E 4e6 and 2.5e7 Pa) at its lowest damping (5 /s), where a step is hardest pressed. The
-settings: the default step with and without retakes, the linearly implicit step at 5e-4 s, and backward Euler
-(``plant.newton``) at 1, 5 and 10 ms. Speed columns: robot-seconds simulated per wall second (the kernels
+settings: the default step with and without retakes, the linearly implicit step at 5e-4 s, backward Euler
+(``plant.newton``) at 1, 5 and 10 ms, and the linearly implicit step with the feet's friction solved at its end
+(``plant.friction=solved``) at 0.5, 1 and 2 ms. Speed columns: robot-seconds simulated per wall second (the kernels
 compiled or loaded first, by a short run that is not timed).
 """
 
@@ -44,6 +45,8 @@ SETTINGS = (
         (f"{dt * 1e3:g} ms, newton 8", {"sim.dt": dt, "plant.jacobian_age": 1, "plant.newton": 8})
         for dt in (1e-3, 5e-3, 1e-2)
     ),
+    # the feet's friction solved at the step's end (plant.friction=solved, slotexp/soft/friction.py)
+    *((f"friction solved, {dt * 1e3:g} ms", {"plant.friction": "solved", "sim.dt": dt}) for dt in (5e-4, 1e-3, 2e-3)),
 )
 
 

@@ -399,14 +399,17 @@ LATERAL_ITERATIONS = 30  # Newton iterations at most for the friction across the
 
 
 @njit(cache=True, allocates=False)
-def _lateral_residual(system, rhs6, x, pos, vel, normal, par, axes, p2, mu, v_eps, h, g, across):
+def _lateral_residual(system, rhs6, x, pos, vel, normal, par, axes, p2, mu, v_eps, h, g, across, hess, tangent):
     """G(x) = system x - rhs6 - h sum_k F_k(j_k . x) j_k over the pressed nodes, each one's friction across its
     leg's plane at the slip the torso's velocity ``x`` gives it (its slip along the plane after its leg's step
-    held); ``across`` (legs,) receives each leg's friction sum. Returns |G|^2."""
+    held), into ``g``; ``across`` (legs,) receives each leg's friction sum. With ``tangent``, ``hess`` receives
+    G's Jacobian, system - h sum_k t_k j_k j_k^T (t_k the law's tangent). Returns |G|^2."""
     for a in range(6):
         acc = -rhs6[a]
         for b in range(6):
             acc += system[a, b] * x[b]
+            if tangent:
+                hess[a, b] = system[a, b]
         g[a] = acc
     for i in range(pos.shape[0]):
         lx, ly, w0 = axes[i, 0], axes[i, 1], axes[i, 2]
@@ -419,9 +422,8 @@ def _lateral_residual(system, rhs6, x, pos, vel, normal, par, axes, p2, mu, v_ep
                 continue
             z = pos[i, k, 1] - p2
             w = w0 + pos[i, k, 0]
-            _, f = coulomb_friction(
-                vel[i, k, 0], lat_v + z * turn + w * x[5], nrm, mu, v_eps, par[i, P_MUS], par[i, P_VS]
-            )
+            slip = lat_v + z * turn + w * x[5]
+            _, f = coulomb_friction(vel[i, k, 0], slip, nrm, mu, v_eps, par[i, P_MUS], par[i, P_VS])
             total += f
             hf = h * f
             g[0] -= hf * lx
@@ -429,6 +431,15 @@ def _lateral_residual(system, rhs6, x, pos, vel, normal, par, axes, p2, mu, v_ep
             g[3] += hf * ly * z
             g[4] -= hf * lx * z
             g[5] -= hf * w
+            if tangent:
+                t = -h * friction_tangent(slip, vel[i, k, 0], nrm, mu, v_eps, par[i, P_MUS], par[i, P_VS])
+                j0, j1, j3, j4 = lx, ly, -ly * z, lx * z  # j_k = (j0, j1, 0, j3, j4, w)
+                for a, ja in ((0, j0), (1, j1), (3, j3), (4, j4), (5, w)):
+                    hess[a, 0] += t * ja * j0
+                    hess[a, 1] += t * ja * j1
+                    hess[a, 3] += t * ja * j3
+                    hess[a, 4] += t * ja * j4
+                    hess[a, 5] += t * ja * w
         across[i] = total
     merit = 0.0
     for a in range(6):
@@ -446,35 +457,17 @@ def _solve_lateral(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_
     ``across`` (legs,) receives each leg's friction across its plane at the end."""
     g, step, trial, gt = scratch[0], scratch[1], scratch[2], scratch[3]
     hess = scratch[4:10]
-    merit = _lateral_residual(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_eps, h, g, across)
+    args = (pos, vel, normal, par, axes, p2, mu, v_eps, h)
     for _ in range(LATERAL_ITERATIONS):
-        for a in range(6):
-            for b in range(6):
-                hess[a, b] = system[a, b]
-        for i in range(pos.shape[0]):
-            lx, ly, w0 = axes[i, 0], axes[i, 1], axes[i, 2]
-            lat_v = lx * xi_new[0] + ly * xi_new[1]
-            turn = lx * xi_new[4] - ly * xi_new[3]
-            for k in range(1, pos.shape[1]):
-                nrm = normal[i, k]
-                if nrm <= 0.0:
-                    continue
-                z = pos[i, k, 1] - p2
-                w = w0 + pos[i, k, 0]
-                slip = lat_v + z * turn + w * xi_new[5]
-                t = -h * friction_tangent(slip, vel[i, k, 0], nrm, mu, v_eps, par[i, P_MUS], par[i, P_VS])
-                step[0], step[1], step[2], step[3], step[4], step[5] = lx, ly, 0.0, -ly * z, lx * z, w  # j_k
-                for a in range(6):
-                    for b in range(6):
-                        hess[a, b] += t * step[a] * step[b]
+        merit = _lateral_residual(system, rhs6, xi_new, *args, g, across, hess, True)
         for a in range(6):
             gt[a] = -g[a]
         solve_spd(hess, gt, step)
         lam = 1.0
-        while True:
+        while True:  # backtracking: the full step, or the first half that lowers the residual enough
             for a in range(6):
                 trial[a] = xi_new[a] + lam * step[a]
-            value = _lateral_residual(system, rhs6, trial, pos, vel, normal, par, axes, p2, mu, v_eps, h, gt, across)
+            value = _lateral_residual(system, rhs6, trial, *args, gt, across, hess, False)
             if value < (1.0 - 1e-4 * lam) * merit or lam < 1e-6:
                 break
             lam *= 0.5
@@ -482,11 +475,9 @@ def _solve_lateral(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_
         for a in range(6):
             size = max(size, abs(lam * step[a]))
             xi_new[a] = trial[a]
-            g[a] = gt[a]
-        merit = value
         if size < 1e-9 * v_eps:  # m/s and rad/s: far below anything the step resolves
             break
-    _lateral_residual(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_eps, h, g, across)
+    _lateral_residual(system, rhs6, xi_new, *args, g, across, hess, False)
 
 
 @njit(cache=True, allocates=False)
