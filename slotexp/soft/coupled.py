@@ -396,6 +396,7 @@ def _series_spring(k_lat, deflection, slope_sum, h):
 
 
 LATERAL_ITERATIONS = 30  # Newton iterations at most for the friction across the planes (plant.friction=solved)
+LATERAL_TOLERANCE = 1e-12  # its residual, relative to the momentum the torso's step moves
 
 
 @njit(cache=True, allocates=False)
@@ -458,8 +459,15 @@ def _solve_lateral(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_
     g, step, trial, gt = scratch[0], scratch[1], scratch[2], scratch[3]
     hess = scratch[4:10]
     args = (pos, vel, normal, par, axes, p2, mu, v_eps, h)
+    # |G| at which the step is solved: far below the momentum a step moves (rhs6 ~ M v + h M g)
+    size = 0.0
+    for a in range(6):
+        size += rhs6[a] * rhs6[a]
+    tol2 = LATERAL_TOLERANCE * LATERAL_TOLERANCE * size
+    merit = _lateral_residual(system, rhs6, xi_new, *args, g, across, hess, True)
     for _ in range(LATERAL_ITERATIONS):
-        merit = _lateral_residual(system, rhs6, xi_new, *args, g, across, hess, True)
+        if merit <= tol2:  # (sticking, the law is linear and one iteration solves it)
+            break
         for a in range(6):
             gt[a] = -g[a]
         solve_spd(hess, gt, step)
@@ -471,13 +479,10 @@ def _solve_lateral(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_
             if value < (1.0 - 1e-4 * lam) * merit or lam < 1e-6:
                 break
             lam *= 0.5
-        size = 0.0
         for a in range(6):
-            size = max(size, abs(lam * step[a]))
             xi_new[a] = trial[a]
-        if size < 1e-9 * v_eps:  # m/s and rad/s: far below anything the step resolves
-            break
-    _lateral_residual(system, rhs6, xi_new, *args, g, across, hess, False)
+        # G, its Jacobian and each leg's friction at the new velocity (what the caller reads when this is the last)
+        merit = _lateral_residual(system, rhs6, xi_new, *args, g, across, hess, True)
 
 
 @njit(cache=True, allocates=False)
