@@ -12,7 +12,8 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
 - ``pyelastica`` (if installed): a straight PyElastica rod with as many elements,
   equal cross-section area, same E and density, clamped, under gravity, stepped by
   its PositionVerlet at the symplectic step.
-- ``closed_loop``: a 25 s walk on ``plant=cosserat`` (4 legs, torso, MPC, no log),
+- ``closed_loop``: a 25 s walk on ``plant=cosserat`` (4 legs, torso, MPC, no log), at the
+  configured step and at ``SOLVED_DEFAULT_DT`` with the friction solved, each
   after a 0.2 s warm-up run that compiles or loads every kernel (``warmup_s``);
   median/p99 wall time per 33 ms MPC step, ``ratio_vs_baseline`` = real-time factor.
 - ``batch``: B = 1, 8 and 64 robots stepped together (:class:`CosseratBatch`, one
