@@ -128,3 +128,14 @@ def test_a_dragged_foot_follows_its_converged_path_at_millisecond_steps_when_its
     error = {solved: np.abs(_dragged_foot(1e-3, solved) - converged[solved]).max() for solved in (False, True)}
     assert error[True] < 6e-5
     assert error[False] > 1.5e-4
+
+
+def test_every_friction_solve_of_a_walking_robot_converges():
+    # The forward gait played for 2 s at the step the yardstick admits with the solve (5e-4 s): no solve stops
+    # at its iteration limit (the plant counts those that do)
+    from tests.test_cosserat import _plant, _walk
+
+    cfg, plant = _plant("plant.friction=solved", "sim.dt=5e-4")
+    _walk(plant, cfg, 2.0)
+    assert plant.normal.sum() > 10.0  # standing on its feet
+    assert plant.unsolved_frictions == 0

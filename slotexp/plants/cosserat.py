@@ -34,7 +34,7 @@ from ..soft.coupled import (
     stacked,
     velocity_from_momentum,
 )
-from ..soft.integrators import J_AGE, J_OFFSET, divergence_message, stable_dt
+from ..soft.integrators import J_AGE, J_UNSOLVED, divergence_message, stable_dt
 from ..soft.loads import pair_free_length, rest_free_length
 from ..soft.params import O_F, O_FL, O_N, O_T, OUT, P_FSOLVE, P_TPAIR, leg_params
 from ..soft.rod import LegModel, build_leg, lateral_stiffness
@@ -390,6 +390,12 @@ class CosseratPlant:
         return Robot(*(getattr(self, name) for name in _OWN))
 
     @property
+    def unsolved_frictions(self) -> int:
+        """How many of the legs' friction solves (``plant.friction=solved``) stopped before converging (the
+        friction then is the law at the last iterate's velocities, the step's balance off by its residual)."""
+        return int(self._work.jmeta[:, self.model.n_nodes + J_UNSOLVED].sum())
+
+    @property
     def _retaking(self) -> bool:
         """Whether a diverged period is taken again (:meth:`_retake`): the implicit step's, ``plant.retakes``."""
         return self.implicit and self.cfg.plant.retakes > 0
@@ -413,7 +419,7 @@ class CosseratPlant:
         for k in range(self.cfg.plant.retakes):
             for array, start in zip(self._own(), kept):
                 array[...] = start
-            self._work.jmeta[:, -(J_OFFSET + 1) + J_AGE] = np.inf  # the failed try's Jacobians: factored afresh
+            self._work.jmeta[:, self.model.n_nodes + J_AGE] = np.inf  # the failed try's Jacobians: factored afresh
             m = n << (k + halve)
             done = coupled_steps(*self._kernel_args(self._own(), self._work, f_ext, h * n / m, m, newton), hold)
             if not self._diverged(done, m):
