@@ -179,7 +179,6 @@ class _StatsSink:
 
 @register(overrides=["plant=cosserat"])
 def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
-
     sim = _loaded_leg(cfg)
     h_sym = 0.8 * stable_dt(sim.model, cfg.robot.contact.stiffness)
     h_imp = cfg.sim.dt  # the configured step (plant=cosserat: 1e-4 s)
@@ -250,6 +249,11 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     return rows
 
 
+def _law_label(friction: str) -> str:
+    """What a row's label adds for the implicit step's friction law (``plant.friction``): nothing for the default."""
+    return "" if friction == "secant" else f" friction {friction}"
+
+
 def _closed_loop_row(cfg: SlotConfig) -> BenchRow:
     """The 25 s closed-loop walk at ``cfg``'s plant settings, timed after a short run that compiles (or loads)
     every kernel."""
@@ -267,10 +271,9 @@ def _closed_loop_row(cfg: SlotConfig) -> BenchRow:
     wall = time.perf_counter() - start
     per_step = np.diff(np.concatenate([[start], stamps]))
     mpc = np.asarray(sink.mpc_s)
-    law = " friction solved" if cfg.plant.friction == "solved" else ""
     return BenchRow(
         "closed_loop",
-        f"walk 25 s cosserat + {cfg.solver.name}, dt={cfg.sim.dt:.3g}{law}",
+        f"walk 25 s cosserat + {cfg.solver.name}, dt={cfg.sim.dt:.3g}{_law_label(cfg.plant.friction)}",
         float(np.median(per_step)) * 1e6,
         float(np.quantile(per_step, 0.99)) * 1e6,
         summary.sim_time_s / wall,
@@ -310,7 +313,7 @@ def _accuracy_rows(cfg: SlotConfig, law: str, h_sym: float, age: int) -> list[Be
     against that law's own reference at ``REFERENCE_DT``: both laws converge to the same motion as the step goes to
     zero, and each is judged by how far it is from where it converges."""
     rows: list[BenchRow] = []
-    suffix = "" if law == "secant" else " friction solved"
+    suffix = _law_label(law)
     for case in CASES:
         reference = run_case(with_plant(cfg, "implicit", REFERENCE_DT, 1, 1, law), case)
         case_rows: list[BenchRow] = []
@@ -371,7 +374,7 @@ def _batch_rows(cfg: SlotConfig) -> list[BenchRow]:
         BenchRow(
             "batch",
             f"B={r.robots} robots, {cfg.plant.integrator} dt={cfg.sim.dt:.3g} age {cfg.plant.jacobian_age}"
-            + (" friction solved" if cfg.plant.friction == "solved" else ""),
+            + _law_label(cfg.plant.friction),
             float(np.median(r.step_wall_s)) * 1e6,
             float(np.quantile(r.step_wall_s, 0.99)) * 1e6,
             r.robot_seconds_per_wall_second,

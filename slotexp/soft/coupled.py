@@ -724,22 +724,13 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
             # With a compliant patch each node's F0 + c v and c pass through the series spring first.
             across = 0.0
             csum = gsum = 0.0
-            if solve_across:  # taken at the step's end, with the torso's (_solve_lateral)
-                axes[i, 0], axes[i, 1], axes[i, 2] = lx, ly, w0
-                reaction[i, 0] = fwx
-                reaction[i, 1] = fwy
-                reaction[i, 2] = fwz
-                reaction[i, 3] = mwx
-                reaction[i, 4] = mwy
-                reaction[i, 5] = 0.0
-                for k in range(1, n_nodes):
-                    slopes[i, k] = 0.0
-                continue
+            # (plant.friction=solved: taken at the step's end with the torso's own, _solve_lateral; none here)
+            axes[i, 0], axes[i, 1], axes[i, 2] = lx, ly, w0
             for k in range(1, n_nodes):
                 f0s[k] = 0.0
                 slopes[i, k] = 0.0
                 nrm = normal[i, k]
-                if nrm <= 0.0:
+                if nrm <= 0.0 or solve_across:
                     continue
                 vs = vel[i, k, 0]
                 _, f0 = coulomb_friction(vs, vlat[k], nrm, mu, v_eps, par[i, P_MUS], par[i, P_VS])
@@ -752,7 +743,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
             alpha, hold = _series_spring(k_lat, lateral[i, 0], csum, h)
             sf = sfz = sfw = sc = scz = scw = sczz = sczw = scww = 0.0
             for k in range(1, n_nodes):
-                if normal[i, k] <= 0.0:
+                if normal[i, k] <= 0.0 or solve_across:
                     continue
                 f0 = f0s[k]
                 c = slopes[i, k]

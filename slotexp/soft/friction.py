@@ -20,12 +20,14 @@ into a small nonlinear problem in their end velocities v:
 
 with b their end velocities without friction and N the normal forces at the step's start. Newton's
 method on the law's tangent (:func:`slotexp.soft.loads.friction_tangent`), with a backtracking line
-search on the residual, solves it (for plain Coulomb friction F is monotone and, W being positive
-definite at these steps, the solution is unique); the impulses h F then move every degree of freedom
-through D's columns. This is the Delassus-operator form of the field's contact solvers (MuJoCo's
-constraint space; Otaduy et al., "Implicit contact handling for deformable objects", Eurographics 2009),
-here with the smooth regularised law instead of a cone complementarity problem, on the step's own
-linearisation (the elastic forces once a step, as the rest of the step).
+search on the residual, solves it (for plain Coulomb friction F is monotone, so where W is positive
+definite the solution is unique; where it is not, a soft leg curled hard at a large step, or where a
+static coefficient makes the law non-monotone, Newton can stop unconverged, and the step counts it:
+``J_UNSOLVED``); the impulses h F then move every degree of freedom through D's columns. This is the
+Delassus-operator form of the field's contact solvers (MuJoCo's constraint space; Otaduy et al.,
+"Implicit contact handling for deformable objects", Eurographics 2009), here with the smooth
+regularised law instead of a cone complementarity problem, on the step's own linearisation (the
+elastic forces once a step, as the rest of the step).
 """
 
 from __future__ import annotations
