@@ -380,20 +380,26 @@ class CosseratPlant:
         n, h = self._steps(period)
         own = self._own()
         kept = [a.copy() for a in own] if self._retaking else None  # the period's start, for a retake
+        unsolved = self._unsolved().copy()
         done = coupled_steps(*self._kernel_args(own, self._work, f_ext, h, n), hold)
         if self._diverged(done, n) and kept is not None:
-            done, n, h = self._retake(kept, f_ext, n, h, hold)
+            done, n, h = self._retake(kept, unsolved, f_ext, n, h, hold)
         self._advanced(done, n, h, "the soft-leg simulation", "the scenario's offsets and impulses", kept is not None)
 
     def _own(self) -> Robot:
         """This robot's own arrays (views: the kernels write them in place)."""
         return Robot(*(getattr(self, name) for name in _OWN))
 
+    def _unsolved(self) -> np.ndarray:
+        """Each leg's count of unconverged friction solves (a view of the legs' Jacobian records)."""
+        return self._work.jmeta[..., self.model.n_nodes + J_UNSOLVED]
+
     @property
     def unsolved_frictions(self) -> int:
-        """How many of the legs' friction solves (``plant.friction=solved``) stopped before converging (the
-        friction then is the law at the last iterate's velocities, the step's balance off by its residual)."""
-        return int(self._work.jmeta[:, self.model.n_nodes + J_UNSOLVED].sum())
+        """How many of the kept steps' friction solves (``plant.friction=solved``) stopped before converging (the
+        friction then is the law at the last iterate's velocities, the step's balance off by its residual); a
+        diverged try that a retake replaces does not count."""
+        return int(self._unsolved().sum())
 
     @property
     def _retaking(self) -> bool:
@@ -407,18 +413,19 @@ class CosseratPlant:
         return done < n or not np.all(np.isfinite(self.torso)) or not np.abs(self.vel).max() <= self.wave_speed
 
     def _retake(
-        self, kept: list[np.ndarray], f_ext: np.ndarray, n: int, h: float, hold: bool
+        self, kept: list[np.ndarray], unsolved: np.ndarray, f_ext: np.ndarray, n: int, h: float, hold: bool
     ) -> tuple[int, int, float]:
-        """Take a diverged period again from its start (``kept``): backward Euler solved by Newton corrections
-        (:data:`RETAKE_NEWTON` passes, the legs' own halvings within), at half the step each further time, up to
-        ``plant.retakes`` times. Returns the last try's (steps done, steps, step). The period then counts in
-        ``retaken_periods``; a period no retake carries through diverged."""
+        """Take a diverged period again from its start (``kept``, and the legs' ``unsolved`` friction counts then):
+        backward Euler solved by Newton corrections (:data:`RETAKE_NEWTON` passes, the legs' own halvings within),
+        at half the step each further time, up to ``plant.retakes`` times. Returns the last try's (steps done,
+        steps, step). The period then counts in ``retaken_periods``; a period no retake carries through diverged."""
         newton = max(self.cfg.plant.newton, RETAKE_NEWTON)
         halve = self.cfg.plant.newton >= RETAKE_NEWTON  # a period already taken so is halved at once
         done = 0
         for k in range(self.cfg.plant.retakes):
             for array, start in zip(self._own(), kept):
                 array[...] = start
+            self._unsolved()[...] = unsolved  # the failed try's solves are not the trajectory's
             self._work.jmeta[:, self.model.n_nodes + J_AGE] = np.inf  # the failed try's Jacobians: factored afresh
             m = n << (k + halve)
             done = coupled_steps(*self._kernel_args(self._own(), self._work, f_ext, h * n / m, m, newton), hold)
@@ -547,9 +554,10 @@ class CosseratBatch:
         self.stacked.servo_cmd[:] = np.deg2rad(tendon_deg)
         n, h = first._steps(period)
         kept = [a.copy() for a in self.stacked] if first._retaking else None
+        unsolved = self.work.jmeta[..., first.model.n_nodes + J_UNSOLVED].copy()  # each robot's, for its retake
         batch_steps(*first._kernel_args(self.stacked, self.work, self.f_ext, h, n), self.done)
         for b, p in enumerate(self.plants):
             done, steps, step = int(self.done[b]), n, h
             if p._diverged(done, n) and kept is not None:  # retaken alone, from its row of the period's start
-                done, steps, step = p._retake([a[b] for a in kept], self.f_ext[b], n, h, False)
+                done, steps, step = p._retake([a[b] for a in kept], unsolved[b], self.f_ext[b], n, h, False)
             p._advanced(done, steps, step, f"robot {b} of the batch", "its tendon commands", kept is not None)

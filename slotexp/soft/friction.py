@@ -20,10 +20,15 @@ into a small nonlinear problem in their end velocities v:
 
 with b their end velocities without friction and N the normal forces at the step's start. Newton's
 method on the law's tangent (:func:`slotexp.soft.loads.friction_tangent`), with a backtracking line
-search on the residual, solves it (for plain Coulomb friction F is monotone, so where W is positive
-definite the solution is unique; where it is not, a soft leg curled hard at a large step, or where a
-static coefficient makes the law non-monotone, Newton can stop unconverged, and the step counts it:
-``J_UNSOLVED``); the impulses h F then move every degree of freedom through D's columns. This is the
+search on the residual, solves it; for plain Coulomb friction F is monotone, so where D's symmetric
+part is positive definite the solution is unique. Where a static coefficient makes the law
+non-monotone, Newton can stall on a fold of the residual: nonlinear Gauss-Seidel sweeps then move the
+iterate (each node's own equation, the others' friction held, always has a root, bracketed by the
+cone) and Newton starts again from there. Where D's symmetric part is indefinite (W indefinite: a
+soft leg curled hard at a large step) the problem is not dissipative, its roots need not be unique,
+and the solve stops at Newton's iterate and says so (the step counts it: ``J_UNSOLVED``). Each
+residual is solved to ``TOLERANCE`` v_eps or to its own rounding. The impulses h F then move every
+degree of freedom through D's columns. This is the
 Delassus-operator form of the field's contact solvers (MuJoCo's constraint space; Otaduy et al.,
 "Implicit contact handling for deformable objects", Eurographics 2009), here with the smooth
 regularised law instead of a cone complementarity problem, on the step's own linearisation (the
@@ -38,8 +43,15 @@ from ..jit import njit
 from .loads import coulomb_friction, friction_tangent
 
 NEWTON_ITERATIONS = 50  # Newton iterations at most (a node that switches between sticking and sliding takes a few)
+ROUNDS = 10  # Newton, and up to nine times more after Gauss-Seidel's sweeps where it stalls
+GS_SWEEPS = 40  # nonlinear Gauss-Seidel sweeps between Newton's rounds
+GS_ITERATIONS = 80  # a node's own equation: safeguarded Newton (bisection where its step leaves the bracket)
 # the residual (m/s) at which the solve stops, relative to the slip velocity: far below anything the step resolves
 TOLERANCE = 1e-9
+# ... or within this many machine epsilons of the sizes the residual sums (its rounding floor: a soft leg's pressed
+# nodes can carry impulses whose velocities are 10^4 times the tolerance's)
+ROUNDING = 64.0
+EPSILON = float(np.finfo(np.float64).eps)
 # the scratch's rows after Newton's n x n matrix: the pressed nodes' indices, velocities, friction-free end
 # velocities, residual, friction, Newton's step, and a line search's trial velocities, friction and residual
 ROW_INDEX, ROW_V, ROW_B, ROW_R, ROW_F, ROW_DV, ROW_VT, ROW_FT, ROW_RT = range(9)
@@ -75,8 +87,17 @@ def _dense_solve(a, b, n):
 
 
 @njit(cache=True, allocates=False)
+def _within(residual, size, v_eps):
+    """Whether a residual (m/s) is solved: within ``TOLERANCE`` v_eps or, where the terms it sums are large (their
+    sizes' sum ``size``), within their rounding, ``ROUNDING`` machine epsilons of it, below which nothing can go."""
+    return abs(residual) <= max(TOLERANCE * v_eps, ROUNDING * EPSILON * size)
+
+
+@njit(cache=True, allocates=False)
 def _residual(fw, jvec, nc, v, f, r, normal, vlat, h, mu, v_eps, mu_s, v_s):
-    """r = v - b - h D F(v) (F into ``f``) for the pressed nodes listed in ``fw``; returns |r|^2."""
+    """r = v - b - h D F(v) (F into ``f``) for the pressed nodes listed in ``fw``.
+
+    Returns (|r|^2, whether every r_a is solved: :func:`_within`)."""
     n = fw.shape[1]
     idx = fw[n + ROW_INDEX]
     b = fw[n + ROW_B]
@@ -84,48 +105,33 @@ def _residual(fw, jvec, nc, v, f, r, normal, vlat, h, mu, v_eps, mu_s, v_s):
         i = int(idx[k])
         f[k], _ = coulomb_friction(v[k], vlat[i], normal[i], mu, v_eps, mu_s, v_s)
     total = 0.0
+    done = True
     for a in range(nc):
         dof = 3 * int(idx[a])
         acc = v[a] - b[a]
+        size = abs(v[a]) + abs(b[a])
         for k in range(nc):
-            acc -= h * jvec[2 + int(idx[k]), dof] * f[k]
+            term = h * jvec[2 + int(idx[k]), dof] * f[k]
+            acc -= term
+            size += abs(term)
         r[a] = acc
         total += acc * acc
-    return total
+        if not _within(acc, size, v_eps):
+            done = False
+    return total, done
 
 
 @njit(cache=True, allocates=False)
-def solve_friction(jvec, pressed, vstart, dv, normal, vlat, h, mu, v_eps, mu_s, v_s, fw):
-    """The pressed nodes' friction along the plane at the step's end, added to the step's velocity change.
-
-    ``pressed`` (N,) is 1 at the pressed nodes (the regimes the factorisation was made with), ``jvec[2 + i]``
-    their columns of W^-1, ``vstart`` (3N - 1) the velocities at the step's start, ``dv`` (3N - 1) the
-    step's velocity change without friction (updated in place), ``normal`` (N,) the normal forces, ``vlat``
-    (N,) the slips across the plane, ``fw`` :func:`friction_work`'s scratch. Returns (the friction's total
-    force along the plane, N; Newton's iterations, ``NEWTON_ITERATIONS`` + 1 where it did not converge).
-    """
+def _newton(fw, jvec, nc, merit, normal, vlat, h, mu, v_eps, mu_s, v_s):
+    """Newton's iterations on the law's tangent from ``fw``'s iterate (its residual ``merit``), with a backtracking
+    line search: until converged, ``NEWTON_ITERATIONS``, or a step that no longer lowers the residual. Returns
+    (|r|^2, converged, iterations)."""
     n = fw.shape[1]
     idx = fw[n + ROW_INDEX]
-    v, b, r, f, step = fw[n + ROW_V], fw[n + ROW_B], fw[n + ROW_R], fw[n + ROW_F], fw[n + ROW_DV]
+    v, r, f, step = fw[n + ROW_V], fw[n + ROW_R], fw[n + ROW_F], fw[n + ROW_DV]
     vt, ft, rt = fw[n + ROW_VT], fw[n + ROW_FT], fw[n + ROW_RT]
-    nc = 0
-    for i in range(1, n):
-        if pressed[i] == 1.0:
-            idx[nc] = i
-            dof = 3 * i
-            b[nc] = vstart[dof] + dv[dof]
-            v[nc] = vstart[dof]  # from the start's slip: a sticking node stays near it
-            nc += 1
-    if nc == 0:
-        return 0.0, 0
-    tol2 = (TOLERANCE * v_eps) ** 2 * nc
-    merit = _residual(fw, jvec, nc, v, f, r, normal, vlat, h, mu, v_eps, mu_s, v_s)
-    iterations = 0
-    while merit > tol2:
-        if iterations == NEWTON_ITERATIONS:
-            iterations += 1
-            break
-        iterations += 1
+    done = False
+    for iteration in range(NEWTON_ITERATIONS):
         for k in range(nc):
             i = int(idx[k])
             t = friction_tangent(v[k], vlat[i], normal[i], mu, v_eps, mu_s, v_s)
@@ -139,15 +145,148 @@ def solve_friction(jvec, pressed, vstart, dv, normal, vlat, h, mu, v_eps, mu_s, 
         while True:  # backtracking: the full step, or the first half that lowers the residual enough
             for a in range(nc):
                 vt[a] = v[a] + lam * step[a]
-            trial = _residual(fw, jvec, nc, vt, ft, rt, normal, vlat, h, mu, v_eps, mu_s, v_s)
-            if trial < (1.0 - 1e-4 * lam) * merit or lam < 1e-6:
+            trial, done = _residual(fw, jvec, nc, vt, ft, rt, normal, vlat, h, mu, v_eps, mu_s, v_s)
+            if trial < (1.0 - 1e-4 * lam) * merit or done:
                 break
+            if lam < 1e-6:  # stalled (a fold of the residual: W indefinite, or the static coefficient's fall)
+                return merit, False, iteration + 1
             lam *= 0.5
         for a in range(nc):
             v[a] = vt[a]
             f[a] = ft[a]
             r[a] = rt[a]
         merit = trial
+        if done:
+            return merit, True, iteration + 1
+    return merit, False, NEWTON_ITERATIONS
+
+
+@njit(cache=True, allocates=False)
+def _node_velocity(x, c, d, vlat, nrm, mu, v_eps, mu_s, v_s):
+    """A root of g(x) = x - c - d F(x), one node's equation with the others' friction held, searched from ``x``.
+    |F| <= mu N brackets the roots in c -/+ |d| mu N, where g changes sign, so one is always found: Newton's
+    steps where they stay inside the bracket, halvings where not."""
+    top = max(mu, mu_s) * nrm * abs(d)
+    lo, hi = c - top, c + top
+    x = min(max(x, lo), hi)
+    for _ in range(GS_ITERATIONS):
+        f, _ = coulomb_friction(x, vlat, nrm, mu, v_eps, mu_s, v_s)
+        g = x - c - d * f
+        if _within(g, abs(x) + abs(c) + abs(d * f), v_eps):
+            break
+        if g > 0.0:
+            hi = x
+        else:
+            lo = x
+        slope = 1.0 - d * friction_tangent(x, vlat, nrm, mu, v_eps, mu_s, v_s)
+        trial = x - g / slope if slope != 0.0 else lo
+        x = trial if lo < trial < hi else 0.5 * (lo + hi)
+    return x
+
+
+@njit(cache=True, allocates=False)
+def _gauss_seidel(fw, jvec, nc, normal, vlat, h, mu, v_eps, mu_s, v_s):
+    """One sweep of nonlinear Gauss-Seidel: each pressed node's velocity solved with the others' friction held,
+    its friction updated before the next node's (projected Gauss-Seidel's order, on the smooth law)."""
+    n = fw.shape[1]
+    idx = fw[n + ROW_INDEX]
+    v, b, f = fw[n + ROW_V], fw[n + ROW_B], fw[n + ROW_F]
+    for a in range(nc):
+        i = int(idx[a])
+        dof = 3 * i
+        c = b[a]
+        for k in range(nc):
+            if k != a:
+                c += h * jvec[2 + int(idx[k]), dof] * f[k]
+        v[a] = _node_velocity(v[a], c, h * jvec[2 + i, dof], vlat[i], normal[i], mu, v_eps, mu_s, v_s)
+        f[a], _ = coulomb_friction(v[a], vlat[i], normal[i], mu, v_eps, mu_s, v_s)
+
+
+@njit(cache=True, allocates=False)
+def _dissipative(fw, jvec, nc):
+    """Whether D, at the ``nc`` pressed nodes listed in ``fw``, has a positive definite symmetric part (Cholesky of
+    (D + D^T) / 2 in ``fw``'s matrix): then the friction's impulses take energy out, the problem has one
+    solution, and each node's own equation one root near the others'. Where it has not (W indefinite: a soft
+    leg curled hard at a large step) the linearised step is no dissipative problem, and a root found far from
+    the start's slip can throw the leg."""
+    n = fw.shape[1]
+    idx = fw[n + ROW_INDEX]
+    for a in range(nc):
+        for k in range(nc):
+            fw[a, k] = 0.5 * (jvec[2 + int(idx[k]), 3 * int(idx[a])] + jvec[2 + int(idx[a]), 3 * int(idx[k])])
+    for k in range(nc):
+        for j in range(k):
+            fw[k, k] -= fw[k, j] * fw[k, j]
+        if fw[k, k] <= 0.0:
+            return False
+        fw[k, k] = np.sqrt(fw[k, k])
+        for i in range(k + 1, nc):
+            for j in range(k):
+                fw[i, k] -= fw[i, j] * fw[k, j]
+            fw[i, k] /= fw[k, k]
+    return True
+
+
+@njit(cache=True, allocates=False)
+def _list_pressed(pressed, fw):
+    """The pressed nodes' indices into ``fw``'s index row; returns how many."""
+    n = fw.shape[1]
+    idx = fw[n + ROW_INDEX]
+    nc = 0
+    for i in range(1, n):
+        if pressed[i] == 1.0:
+            idx[nc] = i
+            nc += 1
+    return nc
+
+
+@njit(cache=True, allocates=False)
+def friction_dissipative(jvec, pressed, fw):
+    """Whether the factorisation's compliance at its ``pressed`` nodes makes the friction's problem dissipative
+    (:func:`_dissipative`); true with none pressed. The step takes one that is not as a step too large."""
+    return _dissipative(fw, jvec, _list_pressed(pressed, fw))
+
+
+@njit(cache=True, allocates=False)
+def solve_friction(jvec, pressed, vstart, dv, normal, vlat, h, mu, v_eps, mu_s, v_s, fw):
+    """The pressed nodes' friction along the plane at the step's end, added to the step's velocity change.
+
+    ``pressed`` (N,) is 1 at the pressed nodes (the regimes the factorisation was made with), ``jvec[2 + i]``
+    their columns of W^-1, ``vstart`` (3N - 1) the velocities at the step's start, ``dv`` (3N - 1) the
+    step's velocity change without friction (updated in place), ``normal`` (N,) the normal forces, ``vlat``
+    (N,) the slips across the plane, ``fw`` :func:`friction_work`'s scratch. Newton first; where it stalls or
+    runs out, ``GS_SWEEPS`` sweeps of nonlinear Gauss-Seidel move the iterate (each node's own equation always
+    has a root) and Newton starts again from there, ``ROUNDS`` times at most. Returns (the friction's total
+    force along the plane, N; Newton's iterations and sweeps; whether it converged).
+    """
+    n = fw.shape[1]
+    idx = fw[n + ROW_INDEX]
+    v, b, r, f = fw[n + ROW_V], fw[n + ROW_B], fw[n + ROW_R], fw[n + ROW_F]
+    nc = _list_pressed(pressed, fw)
+    for k in range(nc):
+        dof = 3 * int(idx[k])
+        b[k] = vstart[dof] + dv[dof]
+        v[k] = vstart[dof]  # from the start's slip: a sticking node stays near it
+    if nc == 0:
+        return 0.0, 0, True
+    merit, done = _residual(fw, jvec, nc, v, f, r, normal, vlat, h, mu, v_eps, mu_s, v_s)
+    iterations = 0
+    for attempt in range(ROUNDS):
+        if done:
+            break
+        if attempt > 0:
+            if attempt == 1 and not _dissipative(fw, jvec, nc):
+                break  # Newton stalled: Gauss-Seidel's sweeps, then Newton again from where they end
+            for _ in range(GS_SWEEPS):
+                _gauss_seidel(fw, jvec, nc, normal, vlat, h, mu, v_eps, mu_s, v_s)
+                iterations += 1
+                merit, done = _residual(fw, jvec, nc, v, f, r, normal, vlat, h, mu, v_eps, mu_s, v_s)
+                if done:
+                    break
+            if done:
+                break
+        merit, done, k = _newton(fw, jvec, nc, merit, normal, vlat, h, mu, v_eps, mu_s, v_s)
+        iterations += k
     total = 0.0
     for k in range(nc):
         total += f[k]
@@ -155,4 +294,4 @@ def solve_friction(jvec, pressed, vstart, dv, normal, vlat, h, mu, v_eps, mu_s, 
         impulse = h * f[k]
         for d in range(dv.shape[0]):
             dv[d] += impulse * col[d]
-    return total, iterations
+    return total, iterations, done

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import ConfigError, DivergenceError
 from ..jit import njit
-from .friction import NEWTON_ITERATIONS, friction_work, solve_friction
+from .friction import friction_dissipative, friction_work, solve_friction
 from .loads import (
     conservative_forces,
     contact_force,
@@ -78,8 +78,9 @@ from .rod import (
 # The implicit step's Jacobian bookkeeping ``jmeta`` (:func:`jacobian_state`): each node's contact regime (N
 # entries), then these, counted from N: the cable's state, the factorisation's age in steps, 1 + g^T W^-1 u,
 # the step it was made with, how many factorisations the leg has made, the pulling cable's offset at the factoring,
-# and how many of its friction solves (plant.friction=solved) stopped unconverged (slotexp.soft.friction).
-J_CABLE, J_AGE, J_GZ, J_STEP, J_COUNT, J_OFFSET, J_UNSOLVED = range(7)
+# how many of its friction solves (plant.friction=solved) stopped unconverged (slotexp.soft.friction), and whether
+# the factorisation's compliance at its pressed nodes is dissipative (friction_dissipative; 1 if so).
+J_CABLE, J_AGE, J_GZ, J_STEP, J_COUNT, J_OFFSET, J_UNSOLVED, J_DISSIPATIVE = range(8)
 # m: a Newton correction that moves no position by more than this ends the step's iterations (implicit_step)
 NEWTON_TOL = 1e-7
 TANGENT_PASSES = 4  # Newton corrections that linearise the friction by its tangent; later ones by its secant
@@ -527,6 +528,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
                         col[d] = 0.0
                     col[3 * i] = 1.0
                     _solve_w(lu, jvec, jmeta[i_gz], taut, col)
+            jmeta[n + J_DISSIPATIVE] = 1.0 if friction_dissipative(jvec, jmeta, fwork) else 0.0
         jmeta[i_cable] = cable
         jmeta[i_step] = h
         jmeta[i_age] = 0.0
@@ -550,9 +552,11 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     rhs[1] = 0.0
     _solve_w(lu, jvec, jmeta[i_gz], taut, rhs)
     if solved and not correction:
-        total_f, iterations = solve_friction(jvec, jmeta, vflat, rhs, normal, vlat, h, mu, v_eps, mu_s, v_s, fwork)
-        if iterations > NEWTON_ITERATIONS:
+        total_f, _, converged = solve_friction(jvec, jmeta, vflat, rhs, normal, vlat, h, mu, v_eps, mu_s, v_s, fwork)
+        if not converged:
             jmeta[n + J_UNSOLVED] += 1.0
+        if jmeta[n + J_DISSIPATIVE] == 0.0:  # W indefinite at the feet: a step too large, taken as a blow-up
+            out[O_DIV] = 1.0
     change = 0.0
     for d in range(2, nd):
         vflat[d] += rhs[d]
@@ -780,7 +784,7 @@ def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:
     the first step factors."""
     nd = 3 * n_nodes - 1
     lead = () if legs is None else (legs,)
-    meta = np.zeros(lead + (n_nodes + J_UNSOLVED + 1,))
+    meta = np.zeros(lead + (n_nodes + J_DISSIPATIVE + 1,))
     meta[..., n_nodes + J_AGE] = np.inf  # refresh at the first step
     return JacobianState(
         np.zeros(lead + (nd, 9)),
