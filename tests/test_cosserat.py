@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from slotexp.errors import DivergenceError
+from slotexp.errors import ConfigError, DivergenceError
 from slotexp.locomotion.primitives import GaitStyle, Primitive
 from slotexp.plants import TendonCommand, nominal_state
 from slotexp.plants.cosserat import CosseratPlant
@@ -425,6 +425,23 @@ def test_a_batch_steps_each_robot_exactly_as_it_steps_alone():
     twin = batch.plants[1]
     twin.step(TendonCommand(commands[1]), 1 / 30)  # a batched robot still steps alone, on its own row
     np.testing.assert_array_equal(batch.stacked.torso[1], twin.torso)
+
+
+def test_tendons_wound_in_while_the_robot_is_set_down_do_not_whip_soft_legs():
+    # The same soft legs at 1 ms with their tendons wound in over the first settling move (plant.wind_in_s)
+    # instead of shortened at once: set down without a retaken period, where at once they need 15 and settle
+    # elsewhere (their nodes 119 mm apart, measured: the whip folds them), and on their feet at rest. On the
+    # default model the two settle within 0.1 mm of each other (measured 0.08).
+    soft = ("robot.leg.youngs_modulus=4e6", "sim.dt=1e-3")
+    _, wound = _plant(*soft, "plant.wind_in_s=0.05", "plant.retakes=0")
+    _, at_once = _plant(*soft)
+    assert wound.retaken_periods == 0 and at_once.retaken_periods > 0
+    assert np.abs(wound.vel).max() < 1e-2 and wound.normal.sum() > 10.0
+    _, default_wound = _plant("plant.wind_in_s=0.05")
+    _, default_at_once = _plant()
+    np.testing.assert_allclose(default_wound.pos, default_at_once.pos, rtol=0, atol=1e-4)
+    with pytest.raises(ConfigError, match="plant.wind_in_s"):
+        load("plant=cosserat", "plant.wind_in_s=0.1")
 
 
 def test_a_diverging_period_is_retaken_by_backward_euler_alone_or_in_a_batch():

@@ -8,7 +8,9 @@ setting and reports whether all ran to the end, where the first failure came, an
 0.05 and 1.5, E 4e6 and 2.5e7 Pa) at its lowest damping (5 /s), where a step is hardest pressed. The
 settings: the default step with and without retakes, the linearly implicit step at 5e-4 s, backward Euler
 (``plant.newton``) at 1, 5 and 10 ms, and the linearly implicit step with the feet's friction solved at its end
-(``plant.friction=solved``) at 0.5, 1 and 2 ms. Speed columns: robot-seconds simulated per wall second (the kernels
+(``plant.friction=solved``) at 0.5, 1 and 2 ms; and, with the tendons wound in over the first settling move
+(``plant.wind_in_s``) rather than at once, the default step without retakes and the solved friction at 1 and
+2 ms. Speed columns: robot-seconds simulated per wall second (the kernels
 compiled or loaded first, by a short run that is not timed).
 """
 
@@ -25,6 +27,7 @@ from . import BenchRow, register
 
 DURATION_S = 8.0  # per gait, as the identification plays them
 RATE_HZ = 50.0
+WIND_IN_S = 0.05  # s: plant.wind_in_s for the "wound in" rows, the whole first settling move
 GAITS = ["forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"]
 # (label, the model's settings by config path): the identification's range's corners
 MODELS = (("default", {}),) + tuple(
@@ -47,6 +50,15 @@ SETTINGS = (
     ),
     # the feet's friction solved at the step's end (plant.friction=solved, slotexp/soft/friction.py)
     *((f"friction solved, {dt * 1e3:g} ms", {"plant.friction": "solved", "sim.dt": dt}) for dt in (5e-4, 1e-3, 2e-3)),
+    # the robot set down with its tendons wound in over the first settling move (plant.wind_in_s), not at once
+    ("wound in, default step, no retakes", {"plant.wind_in_s": WIND_IN_S, "plant.retakes": 0}),
+    *(
+        (
+            f"wound in, friction solved, {dt * 1e3:g} ms",
+            {"plant.wind_in_s": WIND_IN_S, "plant.friction": "solved", "sim.dt": dt},
+        )
+        for dt in (1e-3, 2e-3)
+    ),
 )
 
 

@@ -87,6 +87,10 @@ class CosseratPlantConfig(PlantConfig):
     # start (secant), or solved at the step's end through the step's compliance (solved: a sliding or sticking
     # foot then answers its load as its own mass does, not as h mu N / |v| more; slotexp/soft/friction.py)
     friction: str = choice_field("secant", "secant", "solved")
+    # setting down: the time over which the servos wind the tendons in to the angle that carries the weight, within
+    # the first settling move of SETTLE_S / SETTLE_ITERATIONS (0: at once; a cable shortened at once whips a soft
+    # leg, its nodes at metres per second, before the legs settle)
+    wind_in_s: float = num_field(0.0, lo=0.0, hi=SETTLE_S / SETTLE_ITERATIONS, unit="s")
 
 
 @PLANTS.register()
@@ -290,12 +294,16 @@ class CosseratPlant:
         top = self.cfg.robot.leg.tendon_max_deg
         angle = float(tendon_angle_deg(np.array([weight / 4.0]), self.cfg.robot.actuation, top)[0])
         lowering = SETTLE_ITERATIONS // 2
+        move = seconds / SETTLE_ITERATIONS / LOWERING_MOVES
+        wind_in = self.cfg.plant.wind_in_s
         for k in range(SETTLE_ITERATIONS):
             self.servo[:] = self.servo_cmd[:] = np.deg2rad(angle)
             if k < lowering:  # in small moves, so that every leg deforms continuously onto the ground
-                for s in np.linspace(k, k + 1, LOWERING_MOVES + 1)[1:] / lowering:
+                for j, s in enumerate(np.linspace(k, k + 1, LOWERING_MOVES + 1)[1:] / lowering):
+                    if k == 0 and wind_in > 0.0:  # the servos wind the tendons in over plant.wind_in_s
+                        self.servo[:] = self.servo_cmd[:] = np.deg2rad(angle) * min(1.0, (j + 1) * move / wind_in)
                     self.torso[0:7] = pose_between(self.start_pose, self.target_pose, float(s))
-                    self._run(seconds / SETTLE_ITERATIONS / LOWERING_MOVES, np.zeros(3), hold=True)
+                    self._run(move, np.zeros(3), hold=True)
             else:
                 self._run(seconds / SETTLE_ITERATIONS, np.zeros(3), hold=True)
             angle = float(np.clip(angle + (weight - self.out[:, O_N].sum()) / slope, 0.0, top))
