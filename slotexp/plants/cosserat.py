@@ -388,7 +388,7 @@ class CosseratPlant:
         n, h = self._steps(period)
         own = self._own()
         kept = [a.copy() for a in own] if self._retaking else None  # the period's start, for a retake
-        unsolved = self._unsolved().copy()
+        unsolved = self._unsolved().copy() if kept is not None else None
         done = coupled_steps(*self._kernel_args(own, self._work, f_ext, h, n), hold)
         if self._diverged(done, n) and kept is not None:
             done, n, h = self._retake(kept, unsolved, f_ext, n, h, hold)
@@ -562,7 +562,7 @@ class CosseratBatch:
         self.stacked.servo_cmd[:] = np.deg2rad(tendon_deg)
         n, h = first._steps(period)
         kept = [a.copy() for a in self.stacked] if first._retaking else None
-        unsolved = self.work.jmeta[..., first.model.n_nodes + J_UNSOLVED].copy()  # each robot's, for its retake
+        unsolved = [p._unsolved().copy() for p in self.plants] if kept is not None else []  # for a robot's retake
         batch_steps(*first._kernel_args(self.stacked, self.work, self.f_ext, h, n), self.done)
         for b, p in enumerate(self.plants):
             done, steps, step = int(self.done[b]), n, h

@@ -271,12 +271,12 @@ def solve_friction(jvec, pressed, vstart, dv, normal, vlat, h, mu, v_eps, mu_s, 
         return 0.0, 0, True
     merit, done = _residual(fw, jvec, nc, v, f, r, normal, vlat, h, mu, v_eps, mu_s, v_s)
     iterations = 0
-    for attempt in range(ROUNDS):
-        if done:
-            break
-        if attempt > 0:
-            if attempt == 1 and not _dissipative(fw, jvec, nc):
-                break  # Newton stalled: Gauss-Seidel's sweeps, then Newton again from where they end
+    if not done:
+        merit, done, iterations = _newton(fw, jvec, nc, merit, normal, vlat, h, mu, v_eps, mu_s, v_s)
+    # Newton stalled: Gauss-Seidel's sweeps, then Newton again from where they end (only where the problem is
+    # dissipative: elsewhere a root far from the start's slip can throw the leg)
+    if not done and _dissipative(fw, jvec, nc):
+        for _ in range(ROUNDS - 1):
             for _ in range(GS_SWEEPS):
                 _gauss_seidel(fw, jvec, nc, normal, vlat, h, mu, v_eps, mu_s, v_s)
                 iterations += 1
@@ -285,8 +285,10 @@ def solve_friction(jvec, pressed, vstart, dv, normal, vlat, h, mu, v_eps, mu_s, 
                     break
             if done:
                 break
-        merit, done, k = _newton(fw, jvec, nc, merit, normal, vlat, h, mu, v_eps, mu_s, v_s)
-        iterations += k
+            merit, done, k = _newton(fw, jvec, nc, merit, normal, vlat, h, mu, v_eps, mu_s, v_s)
+            iterations += k
+            if done:
+                break
     total = 0.0
     for k in range(nc):
         total += f[k]
