@@ -49,11 +49,13 @@ def test_static_friction_is_refused_where_the_symplectic_step_would_ignore_it():
     assert load("plant=cosserat", "robot.contact.static_friction=0.2").robot.contact.static_friction == 0.2
 
 
-def test_a_solved_friction_is_refused_for_the_symplectic_step_which_solves_its_own():
-    with pytest.raises(ConfigError, match="plant.friction is the implicit step's") as exc:
-        load("plant=cosserat", "plant.integrator=symplectic", "plant.friction=solved")
+def test_the_secant_friction_is_refused_for_the_symplectic_step_which_solves_its_own():
+    with pytest.raises(ConfigError, match="plant.friction=secant is the implicit step's") as exc:
+        load("plant=cosserat", "plant.integrator=symplectic", "plant.friction=secant")
     assert "\n" not in str(exc.value)
-    assert load("plant=cosserat", "plant.friction=solved").plant.friction == "solved"
+    assert load("plant=cosserat", "plant.friction=secant").plant.friction == "secant"
+    # the default (solved) is what the symplectic step does node by node: asking for the step alone is enough
+    assert load("plant=cosserat", "plant.integrator=symplectic").plant.friction == "solved"
 
 
 def test_stage_cost_is_the_papers_weights_times_1000():

@@ -13,7 +13,7 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
   equal cross-section area, same E and density, clamped, under gravity, stepped by
   its PositionVerlet at the symplectic step.
 - ``closed_loop``: a 25 s walk on ``plant=cosserat`` (4 legs, torso, MPC, no log), at the
-  configured step and at ``SOLVED_DEFAULT_DT`` with the friction solved, each
+  configured settings and at ``PREVIOUS_DEFAULT`` (the secant friction at 2e-4 s), each
   after a 0.2 s warm-up run that compiles or loads every kernel (``warmup_s``);
   median/p99 wall time per 33 ms MPC step, ``ratio_vs_baseline`` = real-time factor.
 - ``batch``: B = 1, 8 and 64 robots stepped together (:class:`CosseratBatch`, one
@@ -30,8 +30,8 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
   outside the tolerance, the case's rows carry no verdict (``within_tolerance`` None,
   ``resolved`` False). The rows marked ``friction solved`` (``plant.friction=solved``:
   the feet's friction solved at the step's end, :mod:`slotexp.soft.friction`) are each
-  judged against that law's own reference and half step, at ``SOLVED_STEPS``; the leg rows
-  and a second set of batch rows (at ``SOLVED_DEFAULT_DT``) time the same law.
+  judged against that law's own reference and half step, at ``SOLVED_STEPS``; a second set
+  of batch rows times ``PREVIOUS_DEFAULT``.
 
 ``ratio_vs_baseline`` for leg rows = PyElastica's time per step / this row's
 (>1 is faster than PyElastica); without PyElastica the baseline is ``symplectic``.
@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import telemetry as T
-from ..config import SlotConfig
+from ..config import SlotConfig, with_settings
 from ..errors import DivergenceError
 from ..robot import leg_root_z
 from ..soft.integrators import LegSim, stable_dt
@@ -69,8 +69,8 @@ ACCURACY_SETTINGS = (
     (2e-4, 1, 1),
     (1e-4, None, 1),
     (1.5e-4, None, 1),  # between the two: the step the yardstick admitted under the loop's earlier setting
-    (2e-4, None, 1),
-    (3e-4, None, 1),  # the next step up from the default (out on the forward walk's attitude)
+    (2e-4, None, 1),  # the secant's largest step the yardstick admits: the default before the solved friction
+    (3e-4, None, 1),  # the next step up from the secant's largest admitted (out on the forward walk's attitude)
     (5e-4, None, 1),
     (1e-3, 1, 1),
     (1e-3, 1, 8),
@@ -81,7 +81,10 @@ ACCURACY_SETTINGS = (
 # the implicit step with the feet's friction solved at its end (plant.friction=solved, slotexp/soft/friction.py),
 # at the configured Jacobian age: each row against the same law's reference at REFERENCE_DT, with its own half step
 SOLVED_STEPS = (2e-4, 5e-4, 1e-3, 2e-3)
-SOLVED_DEFAULT_DT = 5e-4  # s: the largest of them the yardstick admits on every case it resolves (measured)
+# The soft plant's defaults before the solved friction's: the secant at 2e-4 s (the largest step the yardstick admits
+# with it), the tendons taken at once while the robot is set down; the closed loop and batch rows time it beside the
+# configured settings (the solved friction at 5e-4 s, the largest step the yardstick admits with it: measured)
+PREVIOUS_DEFAULT = {"plant.friction": "secant", "sim.dt": 2e-4, "plant.wind_in_s": 0.0}
 
 
 def _loaded_leg(cfg: SlotConfig, jacobian_age: int = 1, newton: int = 1, solved: bool = False) -> LegSim:
@@ -181,7 +184,7 @@ class _StatsSink:
 def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     sim = _loaded_leg(cfg)
     h_sym = 0.8 * stable_dt(sim.model, cfg.robot.contact.stiffness)
-    h_imp = cfg.sim.dt  # the configured step (plant=cosserat: 1e-4 s)
+    h_imp = cfg.sim.dt  # the configured step (plant=cosserat: 5e-4 s)
     age = cfg.plant.jacobian_age
     timings = {}
     variants = [
@@ -239,18 +242,19 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
             )
         )
 
-    # closed loop: 25 s walk on the soft plant (composed with plant=cosserat), no logging; and at the step the
-    # accuracy yardstick admits with the friction solved (docs/results/plant.md)
-    solved = with_plant(cfg, "implicit", SOLVED_DEFAULT_DT, friction="solved")
-    rows += [_closed_loop_row(cfg), _closed_loop_row(solved)]
-    rows += _batch_rows(cfg) + _batch_rows(solved)
+    # closed loop: 25 s walk on the soft plant (composed with plant=cosserat), no logging; and at the settings that
+    # were the default before (docs/results/plant.md)
+    previous = with_settings(cfg, PREVIOUS_DEFAULT)
+    rows += [_closed_loop_row(cfg), _closed_loop_row(previous)]
+    rows += _batch_rows(cfg) + _batch_rows(previous)
     for law in ("secant", "solved"):
         rows += _accuracy_rows(cfg, law, h_sym, age)
     return rows
 
 
 def _law_label(friction: str) -> str:
-    """What a row's label adds for the implicit step's friction law (``plant.friction``): nothing for the default."""
+    """What a row's label adds for the implicit step's friction law (``plant.friction``): nothing for the secant,
+    the law the rows had before the friction was solved."""
     return "" if friction == "secant" else f" friction {friction}"
 
 

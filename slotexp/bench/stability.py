@@ -6,11 +6,10 @@ must not mistake the step blowing up for a bad model. Each row plays the robot's
 setting and reports whether all ran to the end, where the first failure came, and how many periods
 ``plant.retakes`` took again. The models: the default and the corners of the identification's range (friction
 0.05 and 1.5, E 4e6 and 2.5e7 Pa) at its lowest damping (5 /s), where a step is hardest pressed. The
-settings: the default step with and without retakes, the linearly implicit step at 5e-4 s, backward Euler
-(``plant.newton``) at 1, 5 and 10 ms, and the linearly implicit step with the feet's friction solved at its end
-(``plant.friction=solved``) at 0.5, 1 and 2 ms; and, with the tendons wound in over the first settling move
-(``plant.wind_in_s``) rather than at once, the default step without retakes and the solved friction at 1 and
-2 ms. Speed columns: robot-seconds simulated per wall second (the kernels
+settings: the default (the feet's friction solved at the step's end at 5e-4 s, the tendons wound in over the first
+settling move) with and without retakes, set down at once, and at 1 and 2 ms; the secant friction at 2e-4 s with
+the tendons taken at once (the default before), without retakes, wound in, and at 5e-4 s; and backward Euler
+(``plant.newton``) at 1, 5 and 10 ms. Speed columns: robot-seconds simulated per wall second (the kernels
 compiled or loaded first, by a short run that is not timed).
 """
 
@@ -39,25 +38,24 @@ MODELS = (("default", {}),) + tuple(
         ("mu 1.5, E 2.5e7, c 5", 1.5, 2.5e7),
     )
 )
+# The plant's settings before the friction was solved at 5e-4 s with the tendons wound in (the defaults until then):
+# the secant friction at 2e-4 s, the robot set down with its tendons taken at once
+SECANT = {"plant.friction": "secant", "sim.dt": 2e-4, "plant.wind_in_s": 0.0}
 # (label, the plant's settings by config path; the rest the config's)
 SETTINGS = (
     ("default step", {}),
     ("default step, no retakes", {"plant.retakes": 0}),
-    ("5e-4 s", {"sim.dt": 5e-4, "plant.newton": 1}),
+    ("default step, set down at once", {"plant.wind_in_s": 0.0}),
+    *((f"default, {dt * 1e3:g} ms", {"sim.dt": dt}) for dt in (1e-3, 2e-3)),
+    *((f"default, {dt * 1e3:g} ms, set down at once", {"sim.dt": dt, "plant.wind_in_s": 0.0}) for dt in (1e-3, 2e-3)),
+    ("secant, 0.2 ms, at once (the default before)", SECANT),
+    ("secant, 0.2 ms, at once, no retakes", {**SECANT, "plant.retakes": 0}),
+    ("secant, 0.2 ms, wound in, no retakes", {**SECANT, "plant.wind_in_s": WIND_IN_S, "plant.retakes": 0}),
+    ("secant, 0.5 ms, at once", {**SECANT, "sim.dt": 5e-4}),
+    # backward Euler by Newton corrections, with the secant's settings
     *(
-        (f"{dt * 1e3:g} ms, newton 8", {"sim.dt": dt, "plant.jacobian_age": 1, "plant.newton": 8})
+        (f"{dt * 1e3:g} ms, newton 8", {**SECANT, "sim.dt": dt, "plant.jacobian_age": 1, "plant.newton": 8})
         for dt in (1e-3, 5e-3, 1e-2)
-    ),
-    # the feet's friction solved at the step's end (plant.friction=solved, slotexp/soft/friction.py)
-    *((f"friction solved, {dt * 1e3:g} ms", {"plant.friction": "solved", "sim.dt": dt}) for dt in (5e-4, 1e-3, 2e-3)),
-    # the robot set down with its tendons wound in over the first settling move (plant.wind_in_s), not at once
-    ("wound in, default step, no retakes", {"plant.wind_in_s": WIND_IN_S, "plant.retakes": 0}),
-    *(
-        (
-            f"wound in, friction solved, {dt * 1e3:g} ms",
-            {"plant.wind_in_s": WIND_IN_S, "plant.friction": "solved", "sim.dt": dt},
-        )
-        for dt in (1e-3, 2e-3)
     ),
 )
 
@@ -87,7 +85,7 @@ def _play(cfg: SlotConfig) -> dict:
 def bench_stability(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     rows = []
     robot_seconds = len(GAITS) * DURATION_S
-    for warm in (cfg, with_settings(cfg, SETTINGS[-1][1])):  # compile (or load) both paths, start the threads: untimed
+    for warm in (cfg, with_settings(cfg, SECANT)):  # compile (or load) both friction laws, start the threads: untimed
         play(warm, GAITS, 0.2, RATE_HZ)
     for label, model in MODELS:
         for name, setting in SETTINGS:

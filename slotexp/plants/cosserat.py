@@ -83,14 +83,15 @@ class CosseratPlantConfig(PlantConfig):
     # implicit step: a control period whose steps diverge is taken again from its start by backward Euler
     # (RETAKE_NEWTON passes), at half the step each further time it diverges, up to this many times (0: stop)
     retakes: int = num_field(4, lo=0, hi=10, unit="retakes")
-    # implicit step: the feet's friction along the legs' planes, linearised at its secant slope at the step's
-    # start (secant), or solved at the step's end through the step's compliance (solved: a sliding or sticking
-    # foot then answers its load as its own mass does, not as h mu N / |v| more; slotexp/soft/friction.py)
-    friction: str = choice_field("secant", "secant", "solved")
+    # implicit step: the feet's friction along the legs' planes, solved at the step's end through the step's
+    # compliance (solved: a sliding or sticking foot answers its load as its own mass does; slotexp/soft/friction.py),
+    # or linearised at its secant slope at the step's start (secant: as if it weighed h mu N / |v| more). The
+    # symplectic step solves each node's friction itself, as solved does.
+    friction: str = choice_field("solved", "secant", "solved")
     # setting down: the time over which the servos wind the tendons in to the angle that carries the weight, within
     # the first settling move of SETTLE_S / SETTLE_ITERATIONS (0: at once; a cable shortened at once whips a soft
     # leg, its nodes at metres per second, before the legs settle)
-    wind_in_s: float = num_field(0.0, lo=0.0, hi=SETTLE_S / SETTLE_ITERATIONS, unit="s")
+    wind_in_s: float = num_field(SETTLE_S / SETTLE_ITERATIONS, lo=0.0, hi=SETTLE_S / SETTLE_ITERATIONS, unit="s")
 
 
 @PLANTS.register()
@@ -112,10 +113,10 @@ class CosseratPlant:
             )
         if symplectic and cfg.plant.newton > 1:
             raise ConfigError("plant.newton is the implicit step's: drop it, or use plant.integrator=implicit")
-        if symplectic and cfg.plant.friction == "solved":
+        if symplectic and cfg.plant.friction == "secant":
             raise ConfigError(
-                "plant.friction is the implicit step's (the symplectic step solves each node's friction "
-                "itself): drop it, or use plant.integrator=implicit"
+                "plant.friction=secant is the implicit step's linearisation (the symplectic step solves each "
+                "node's friction itself): drop it, or use plant.integrator=implicit"
             )
         if cfg.robot.leg.model == "paper" and not symplectic:
             raise ConfigError(
