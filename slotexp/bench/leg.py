@@ -69,7 +69,7 @@ ACCURACY_SETTINGS = (
     (2e-4, 1, 1),
     (1e-4, None, 1),
     (1.5e-4, None, 1),  # between the two: the step the yardstick admitted under the loop's earlier setting
-    (2e-4, None, 1),  # the secant's largest step the yardstick admits: the default before the solved friction
+    (2e-4, None, 1),  # the default before the solved friction (admitted set down at once; wound in, 1.5e-4 s)
     (3e-4, None, 1),  # the next step up from the secant's largest admitted (out on the forward walk's attitude)
     (5e-4, None, 1),
     (1e-3, 1, 1),
@@ -81,9 +81,10 @@ ACCURACY_SETTINGS = (
 # the implicit step with the feet's friction solved at its end (plant.friction=solved, slotexp/soft/friction.py),
 # at the configured Jacobian age: each row against the same law's reference at REFERENCE_DT, with its own half step
 SOLVED_STEPS = (2e-4, 5e-4, 1e-3, 2e-3)
-# The soft plant's defaults before the solved friction's: the secant at 2e-4 s (the largest step the yardstick admits
-# with it), the tendons taken at once while the robot is set down; the closed loop and batch rows time it beside the
-# configured settings (the solved friction at 5e-4 s, the largest step the yardstick admits with it: measured)
+# The soft plant's defaults before the solved friction's: the secant at 2e-4 s (the largest step the yardstick admitted
+# with it, the robot set down at once), the tendons taken at once while the robot is set down; the closed loop and
+# batch rows time it beside the configured settings (the solved friction at 5e-4 s, the largest step the yardstick
+# admits with it: measured)
 PREVIOUS_DEFAULT = {"plant.friction": "secant", "sim.dt": 2e-4, "plant.wind_in_s": 0.0}
 
 
