@@ -53,7 +53,7 @@ from ..soft.integrators import LegSim, stable_dt
 from ..soft.params import P_FSOLVE
 from ..soft.statics import clamped_leg, set_tendon
 from . import BenchRow, register
-from ._accuracy import CASES, compare, real_time_factor, run_case, with_plant, within
+from ._accuracy import CASES, PREVIOUS_DEFAULT, compare, real_time_factor, run_case, with_plant, within
 from .batch import batch_throughput
 
 TRANSIENT_S = 0.2
@@ -81,11 +81,6 @@ ACCURACY_SETTINGS = (
 # the implicit step with the feet's friction solved at its end (plant.friction=solved, slotexp/soft/friction.py),
 # at the configured Jacobian age: each row against the same law's reference at REFERENCE_DT, with its own half step
 SOLVED_STEPS = (2e-4, 5e-4, 1e-3, 2e-3)
-# The soft plant's defaults before the solved friction's: the secant at 2e-4 s (the largest step the yardstick admitted
-# with it, the robot set down at once), the tendons taken at once while the robot is set down; the closed loop and
-# batch rows time it beside the configured settings (the solved friction at 5e-4 s, the largest step the yardstick
-# admits with it: measured)
-PREVIOUS_DEFAULT = {"plant.friction": "secant", "sim.dt": 2e-4, "plant.wind_in_s": 0.0}
 
 
 def _loaded_leg(cfg: SlotConfig, jacobian_age: int = 1, newton: int = 1, solved: bool = False) -> LegSim:

@@ -22,11 +22,13 @@ from pathlib import Path
 from ..config import SlotConfig, with_settings
 from ..errors import DivergenceError
 from ..locomotion.schedules import play
+from ..plants.cosserat import SETTLE_ITERATIONS, SETTLE_S
 from . import BenchRow, register
+from ._accuracy import PREVIOUS_DEFAULT
 
 DURATION_S = 8.0  # per gait, as the identification plays them
 RATE_HZ = 50.0
-WIND_IN_S = 0.05  # s: plant.wind_in_s for the "wound in" rows, the whole first settling move
+WIND_IN_S = SETTLE_S / SETTLE_ITERATIONS  # s: plant.wind_in_s for the "wound in" row, the whole first settling move
 GAITS = ["forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"]
 # (label, the model's settings by config path): the identification's range's corners
 MODELS = (("default", {}),) + tuple(
@@ -38,9 +40,6 @@ MODELS = (("default", {}),) + tuple(
         ("mu 1.5, E 2.5e7, c 5", 1.5, 2.5e7),
     )
 )
-# The plant's settings before the friction was solved at 5e-4 s with the tendons wound in (the defaults until then):
-# the secant friction at 2e-4 s, the robot set down with its tendons taken at once
-SECANT = {"plant.friction": "secant", "sim.dt": 2e-4, "plant.wind_in_s": 0.0}
 # (label, the plant's settings by config path; the rest the config's)
 SETTINGS = (
     ("default step", {}),
@@ -48,13 +47,13 @@ SETTINGS = (
     ("default step, set down at once", {"plant.wind_in_s": 0.0}),
     *((f"default, {dt * 1e3:g} ms", {"sim.dt": dt}) for dt in (1e-3, 2e-3)),
     *((f"default, {dt * 1e3:g} ms, set down at once", {"sim.dt": dt, "plant.wind_in_s": 0.0}) for dt in (1e-3, 2e-3)),
-    ("secant, 0.2 ms, at once (the default before)", SECANT),
-    ("secant, 0.2 ms, at once, no retakes", {**SECANT, "plant.retakes": 0}),
-    ("secant, 0.2 ms, wound in, no retakes", {**SECANT, "plant.wind_in_s": WIND_IN_S, "plant.retakes": 0}),
-    ("secant, 0.5 ms, at once", {**SECANT, "sim.dt": 5e-4}),
+    ("secant, 0.2 ms, at once (the default before)", PREVIOUS_DEFAULT),
+    ("secant, 0.2 ms, at once, no retakes", {**PREVIOUS_DEFAULT, "plant.retakes": 0}),
+    ("secant, 0.2 ms, wound in, no retakes", {**PREVIOUS_DEFAULT, "plant.wind_in_s": WIND_IN_S, "plant.retakes": 0}),
+    ("secant, 0.5 ms, at once", {**PREVIOUS_DEFAULT, "sim.dt": 5e-4}),
     # backward Euler by Newton corrections, with the secant's settings
     *(
-        (f"{dt * 1e3:g} ms, newton 8", {**SECANT, "sim.dt": dt, "plant.jacobian_age": 1, "plant.newton": 8})
+        (f"{dt * 1e3:g} ms, newton 8", {**PREVIOUS_DEFAULT, "sim.dt": dt, "plant.jacobian_age": 1, "plant.newton": 8})
         for dt in (1e-3, 5e-3, 1e-2)
     ),
 )
@@ -85,7 +84,8 @@ def _play(cfg: SlotConfig) -> dict:
 def bench_stability(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     rows = []
     robot_seconds = len(GAITS) * DURATION_S
-    for warm in (cfg, with_settings(cfg, SECANT)):  # compile (or load) both friction laws, start the threads: untimed
+    # compile (or load) both friction laws and start the threads, untimed
+    for warm in (cfg, with_settings(cfg, PREVIOUS_DEFAULT)):
         play(warm, GAITS, 0.2, RATE_HZ)
     for label, model in MODELS:
         for name, setting in SETTINGS:
