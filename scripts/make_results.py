@@ -466,6 +466,28 @@ RUNS = {
     # ... at 1 ms, twice the default step: the identification's time against its cost's own scatter with the step
     # (docs/results/plant.md, "Identification at 1 ms"; the yardstick admits 5e-4 s for the closed loop)
     "identify_robot_1ms": ["experiment=identify", "plant=cosserat", FITTED, "experiment.max_evals=96", "sim.dt=1e-3"],
+    # ... with each heading's sigma grown by its gait's own displacement (experiment.heading_displacement_sigma_mm,
+    # the distances' 1 mm floor): a gait the model barely moves creeps in a direction the step picks, which a fixed
+    # 15 deg charged as a cliff (docs/results/gaits.md, "Headings of gaits that barely move"); at both steps, and
+    # held to the walking height, where the cliff was found
+    **{
+        f"identify_robot{held}_heading{tag}": [
+            "experiment=identify",
+            "plant=cosserat",
+            FITTED_WIDE if held else FITTED,
+            *(["experiment.height_mm=40"] if held else []),
+            "experiment.max_evals=96",
+            "experiment.heading_displacement_sigma_mm=1.0",
+            *extra,
+        ]
+        for held in ("", "_height40")
+        for tag, extra in (
+            ("", []),
+            ("_1ms", ["sim.dt=1e-3"]),
+            # the same search from other seeds (its design and its steps): how far its end depends on its path
+            *((f"_1ms_seed{seed}", ["sim.dt=1e-3", f"experiment.seed={seed}"]) for seed in (2, 3) if not held),
+        )
+    },
     # Robust fits with the tendon's uncertain geometry: along the leg (its offset; the worst cost under E and
     # friction 10 % either way), and as a bowstring (its guide's height; the worst under each of the five settings
     # that set how far a foot moves and grips, 10 % either way: the first fit was knife-edged in those it did not

@@ -14,6 +14,7 @@ import yaml
 from slotexp.errors import ConfigError
 from slotexp.jobs.identify import (
     ParameterSpec,
+    heading_sigma,
     load_observations,
     read_track,
     report,
@@ -140,6 +141,30 @@ def test_the_torso_height_is_an_observation_of_every_gait_from_the_config_or_the
     csv.write_text("gait,compass_deg,distance_per_cycle_mm\nforward,0,50\n")  # no column: the config's height
     rows = residuals(held, load_observations(held, str(csv), {}), result).query("observation == 'height_mm'")
     assert list(rows["observed"]) == [40.0]
+
+
+def test_a_headings_sigma_grows_as_its_gaits_displacement_shrinks_as_error_propagation_says():
+    # a displacement of d known to +-s in every direction points within +-s/d rad (for s << d): Monte Carlo
+    rng = np.random.default_rng(0)
+    for d, s in ((10.0, 1.0), (30.0, 2.0)):
+        ends = np.array([d, 0.0]) + rng.normal(0.0, s, (200_000, 2))
+        spread = np.degrees(np.std(np.arctan2(ends[:, 1], ends[:, 0])))
+        assert heading_sigma(0.0 + 1e-12, s, d) == pytest.approx(spread, rel=0.02)
+    assert heading_sigma(15.0, 0.0, 0.1) == 15.0  # off: the observation's sigma alone, however little it moves
+    assert heading_sigma(15.0, 1.0, 50.0) == pytest.approx(math.hypot(15.0, math.degrees(math.atan(1 / 50))))
+    assert heading_sigma(15.0, 1.0, 0.0) == pytest.approx(math.hypot(15.0, 90.0))  # standing still: no direction
+    # in the cost: a gait that creeps 0.3 mm per cycle the wrong way is charged little, one that walks it, fully
+    args = ("plant=cosserat", "experiment=identify", "experiment.schedules=[walk_45]")
+    cfg = load(*args, "experiment.heading_displacement_sigma_mm=1.0")
+    obs = load_observations(cfg, "robot", {})
+    for distance, lo, hi in ((0.3, 1.0, 2.0), (20.0, 7.0, 8.0)):
+        result = {"gaits": {"walk_45": {"compass_deg": 45.0 + 120.0, "distance_per_cycle_mm": distance}}}
+        (residual,) = residuals(cfg, obs, result)["residual"]
+        assert residual == pytest.approx(120.0 / heading_sigma(15.0, 1.0, distance))
+        assert lo < residual < hi
+    fixed = load(*args)
+    (residual,) = residuals(fixed, load_observations(fixed, "robot", {}), result)["residual"]
+    assert residual == pytest.approx(120.0 / 15.0)
 
 
 def test_a_dask_cluster_and_local_processes_evaluate_the_same_candidates(tmp_path: Path):
