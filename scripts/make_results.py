@@ -429,6 +429,28 @@ RUNS = {
         "robot.contact.friction=0.6",
         "experiment.gif=false",
     ],
+    # The gaits on a grippy, stiff model from the identification's range (where its searches at 1 ms failed) at the
+    # default step with the Jacobians refreshed by turn (plant.jacobian_turn) and without, at 1 ms with it, and at the
+    # converged step (5e-5 s, a fresh Jacobian every step): how far the retakes and the turn move the gaits
+    **{
+        f"replay_grippy{tag}": [
+            "experiment=replay",
+            "plant=cosserat",
+            "experiment.gif=false",
+            "robot.contact.friction=1.1458",
+            "robot.servo.horn_zero_deg=[89.66,89.66,89.66,89.66]",
+            "robot.leg.youngs_modulus=2.188e7",
+            "robot.leg.damping_per_s=9.16",
+            *extra,
+        ]
+        for tag, extra in (
+            ("", []),
+            ("_turn", ["plant.jacobian_turn=0.1"]),
+            # (at 1 ms without the turn the crawl diverges 6.3 s in, retakes and all, and the replay stops there)
+            ("_1ms_turn", ["sim.dt=1e-3", "plant.jacobian_turn=0.1"]),
+            ("_converged", ["sim.dt=5e-5", "plant.jacobian_age=1"]),
+        )
+    },
     # Model options one at a time on the default model (replay: on against off), each for its physical reason
     # (docs/results/gaits.md): the horn zero at eq. 11's standing angle, a stiffer leg (E),
     # a stiffer tendon, the authors' newer leg length, a lighter torso, its mass centre 15 mm back, a straight leg,
@@ -488,6 +510,17 @@ RUNS = {
             *((f"_1ms_seed{seed}", ["sim.dt=1e-3", f"experiment.seed={seed}"]) for seed in (2, 3) if not held),
         )
     },
+    # ... at 1 ms with the Jacobians made afresh once an element has turned 0.1 rad (plant.jacobian_turn): without it
+    # the searches at 1 ms scored 1-5 candidates failed, the linearly implicit step on an old factorisation blowing
+    # up where a tendon whips a grippy, stiff model's leg (docs/results/plant.md, "Jacobians refreshed by turn")
+    "identify_robot_1ms_turn": [
+        "experiment=identify",
+        "plant=cosserat",
+        FITTED,
+        "experiment.max_evals=96",
+        "sim.dt=1e-3",
+        "plant.jacobian_turn=0.1",
+    ],
     # Robust fits with the tendon's uncertain geometry: along the leg (its offset; the worst cost under E and
     # friction 10 % either way), and as a bowstring (its guide's height; the worst under each of the five settings
     # that set how far a foot moves and grips, 10 % either way: the first fit was knife-edged in those it did not

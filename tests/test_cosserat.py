@@ -479,6 +479,22 @@ def test_a_diverging_period_is_retaken_by_backward_euler_alone_or_in_a_batch():
         assert np.abs(plant.vel).max() < 5.0
 
 
+def test_a_crawl_on_a_grippy_stiff_model_needs_no_retake_at_1_ms_with_its_jacobians_refreshed_by_turn():
+    # The robot's crawl winds one tendon to 165 deg at full servo speed while another lets go: the legs whip, their
+    # elements turn tenths of a radian within the five steps a factorisation serves, and the linearly implicit step
+    # on the old one diverges at 1 ms (grippy, stiff: friction 1.15, E 2.2e7 Pa). Refactored once an element has
+    # turned 0.1 rad (plant.jacobian_turn), the same crawl runs through with no period retaken.
+    from slotexp.locomotion.schedules import play
+
+    model = ("sim.dt=1e-3", "robot.contact.friction=1.1458", "robot.servo.horn_zero_deg=[89.66,89.66,89.66,89.66]",
+             "robot.leg.youngs_modulus=2.188e7", "robot.leg.damping_per_s=9.16")  # fmt: skip
+    with pytest.raises(DivergenceError):
+        play(load("plant=cosserat", *model, "plant.retakes=0"), ["crawl_forward"], 3.0, 50.0)
+    t, xs, retaken = play(load("plant=cosserat", *model, "plant.jacobian_turn=0.1"), ["crawl_forward"], 3.0, 50.0)
+    assert retaken.tolist() == [0] and np.isfinite(xs).all()
+    assert xs[0, -1, 3] > 0.02  # it crawled forward (the state: attitude, position, ...), more than 20 mm in 3 s
+
+
 def test_a_torso_on_the_ground_carries_its_weight_there_and_its_friction_stays_in_the_cone():
     # robot.torso.ground_contact: every tendon 25 deg slack (the robot's horn 105), the legs cannot hold the
     # body up and it settles onto its underside (bottom face 17 mm below the centre). The ground then carries

@@ -164,7 +164,7 @@ def test_symplectic_energy_drift_without_damping():
     assert abs(energies[-20:].mean() - energies[:20].mean()) < 0.005 * e0
 
 
-def _loaded_transient(m, h, integrator="implicit", jacobian_age=1, newton=1):
+def _loaded_transient(m, h, integrator="implicit", jacobian_age=1, newton=1, turn=0.0):
     """Smooth loading (the servo winds 4 mm of cable in over 0.1 s, the foot on the ground, friction
     on) at step ``h``: tip (s, z) and tension every 1 ms, and how many Jacobians the implicit step factored."""
     from slotexp.soft.loads import tendon_length
@@ -182,6 +182,7 @@ def _loaded_transient(m, h, integrator="implicit", jacobian_age=1, newton=1):
             tendon_offset=0.01,
             tendon_max=140.0,
             n_anchor=20,
+            jacobian_turn=turn,
         ),
     )
     sim.jacobian_age = jacobian_age
@@ -216,6 +217,36 @@ def test_a_reused_jacobian_follows_the_exact_implicit_step():
     assert 100 <= n_reused < 400  # at least one per 20 steps; contact and tendon changes add a few
     np.testing.assert_allclose(reused[:, :2], exact[:, :2], atol=2e-5)  # tip within 0.02 mm all along
     assert reused[-50:, 2].mean() == pytest.approx(exact[-50:, 2].mean(), rel=1e-3)
+
+
+def test_the_jacobian_is_refactored_once_an_element_has_turned_past_the_limit():
+    # plant.jacobian_turn: a factorisation kept by age is made afresh once the elements' largest turn, summed over
+    # the steps since it was made, passes the limit; a limit never reached changes nothing, bit for bit
+    m = build_leg(LegConfig())
+    exact, _ = _loaded_transient(m, 1e-4)
+    kept, n_kept = _loaded_transient(m, 1e-4, jacobian_age=10**6)
+    same, n_same = _loaded_transient(m, 1e-4, jacobian_age=10**6, turn=10.0)
+    assert n_same == n_kept and np.array_equal(same, kept)
+    turned, n_turned = _loaded_transient(m, 1e-4, jacobian_age=10**6, turn=0.01)
+    assert n_turned > n_kept
+    assert np.abs(turned[:, :2] - exact[:, :2]).max() < np.abs(kept[:, :2] - exact[:, :2]).max()
+    # step by step: whenever the summed turn had passed the limit at a step's start, that step refactored
+    sim = LegSim(m, make_par(gravity=9.81, damping=20.0, tendon_k=2e4, tendon_offset=0.01, n_anchor=20,
+                             jacobian_turn=0.01))  # fmt: skip
+    sim.jacobian_age = 10**6
+    from slotexp.soft.loads import tendon_length
+
+    free0 = tendon_length(sim.pos, sim.theta, sim.root[4], sim.par)
+    summed, refreshes = 0.0, 0
+    for k in range(400):
+        sim.free_length = free0 - 0.004 * min(1.0, k / 200)
+        before, count = sim.theta.copy(), sim.factorisations
+        sim.step(1e-4, 1, "implicit")
+        if summed > 0.01:
+            assert sim.factorisations == count + 1
+            refreshes += 1
+        summed = (0.0 if sim.factorisations > count else summed) + np.abs(sim.theta - before).max()
+    assert refreshes >= 3  # the cable curls the leg past the limit again and again
 
 
 def _stance_after_a_tendon_step(h, newton, seconds=1.0):

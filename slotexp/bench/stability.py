@@ -5,9 +5,11 @@ must not mistake the step blowing up for a bad model. Each row plays the robot's
 (:func:`slotexp.locomotion.schedules.play`, one batch, :data:`DURATION_S` each) on one model at one plant
 setting and reports whether all ran to the end, where the first failure came, and how many periods
 ``plant.retakes`` took again. The models: the default and the corners of the identification's range (friction
-0.05 and 1.5, E 4e6 and 2.5e7 Pa) at its lowest damping (5 /s), where a step is hardest pressed. The
-settings: the default (the feet's friction solved at the step's end at 5e-4 s, the tendons wound in over the first
-settling move) with and without retakes, set down at once, and at 1 and 2 ms; the secant friction at 2e-4 s with
+0.05 and 1.5, E 4e6 and 2.5e7 Pa) at its lowest damping (5 /s), where a step is hardest pressed, and a grippy,
+stiff model inside it at a low horn zero, where the searches at 1 ms failed. The settings: the default (the feet's
+friction solved at the step's end at 5e-4 s, the tendons wound in over the first settling move) with and without
+retakes, set down at once, and at 1 and 2 ms; with the Jacobians refreshed by turn (``plant.jacobian_turn``) at
+each of those steps; the secant friction at 2e-4 s with
 the tendons taken at once (the default before), without retakes, wound in, and at 5e-4 s; and backward Euler
 (``plant.newton``) at 1, 5 and 10 ms. Speed columns: robot-seconds simulated per wall second (the kernels
 compiled or loaded first, by a short run that is not timed).
@@ -31,15 +33,32 @@ RATE_HZ = 50.0
 WIND_IN_S = SETTLE_S / SETTLE_ITERATIONS  # s: plant.wind_in_s for the "wound in" row, the whole first settling move
 GAITS = ["forward", "backward", "right_walk", "left_walk", "walk_45", "crawl_forward", "crawl_backward"]
 # (label, the model's settings by config path): the identification's range's corners
-MODELS = (("default", {}),) + tuple(
-    (label, {"robot.contact.friction": mu, "robot.leg.youngs_modulus": youngs, "robot.leg.damping_per_s": 5.0})
-    for label, mu, youngs in (
-        ("mu 0.05, E 4e6, c 5", 0.05, 4.0e6),
-        ("mu 1.5, E 4e6, c 5", 1.5, 4.0e6),
-        ("mu 0.05, E 2.5e7, c 5", 0.05, 2.5e7),
-        ("mu 1.5, E 2.5e7, c 5", 1.5, 2.5e7),
+MODELS = (
+    (("default", {}),)
+    + tuple(
+        (label, {"robot.contact.friction": mu, "robot.leg.youngs_modulus": youngs, "robot.leg.damping_per_s": 5.0})
+        for label, mu, youngs in (
+            ("mu 0.05, E 4e6, c 5", 0.05, 4.0e6),
+            ("mu 1.5, E 4e6, c 5", 1.5, 4.0e6),
+            ("mu 0.05, E 2.5e7, c 5", 0.05, 2.5e7),
+            ("mu 1.5, E 2.5e7, c 5", 1.5, 2.5e7),
+        )
+    )
+    + (
+        # inside the range, where the searches at 1 ms scored candidates failed: grippy and stiff at a low horn zero,
+        # whose crawls wind a tendon to 165 deg (docs/results/gaits.md, "Headings of gaits that barely move")
+        (
+            "mu 1.15, E 2.19e7, c 9.2, horn zero 89.7",
+            {
+                "robot.contact.friction": 1.1458,
+                "robot.leg.youngs_modulus": 2.188e7,
+                "robot.leg.damping_per_s": 9.16,
+                "robot.servo.horn_zero_deg": 89.66,
+            },
+        ),
     )
 )
+TURN_RAD = 0.1  # plant.jacobian_turn for the rows that refresh the Jacobians by turn
 # (label, the plant's settings by config path; the rest the config's)
 SETTINGS = (
     ("default step", {}),
@@ -47,6 +66,12 @@ SETTINGS = (
     ("default step, set down at once", {"plant.wind_in_s": 0.0}),
     *((f"default, {dt * 1e3:g} ms", {"sim.dt": dt}) for dt in (1e-3, 2e-3)),
     *((f"default, {dt * 1e3:g} ms, set down at once", {"sim.dt": dt, "plant.wind_in_s": 0.0}) for dt in (1e-3, 2e-3)),
+    # the Jacobians made afresh once an element has turned TURN_RAD (plant.jacobian_turn)
+    ("default step, Jacobians by turn", {"plant.jacobian_turn": TURN_RAD}),
+    *(
+        (f"default, {dt * 1e3:g} ms, Jacobians by turn", {"sim.dt": dt, "plant.jacobian_turn": TURN_RAD})
+        for dt in (1e-3, 2e-3)
+    ),
     ("secant, 0.2 ms, at once (the default before)", PREVIOUS_DEFAULT),
     ("secant, 0.2 ms, at once, no retakes", {**PREVIOUS_DEFAULT, "plant.retakes": 0}),
     ("secant, 0.2 ms, wound in, no retakes", {**PREVIOUS_DEFAULT, "plant.wind_in_s": WIND_IN_S, "plant.retakes": 0}),

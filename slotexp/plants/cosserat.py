@@ -36,7 +36,7 @@ from ..soft.coupled import (
 )
 from ..soft.integrators import J_AGE, J_UNSOLVED, divergence_message, stable_dt
 from ..soft.loads import pair_free_length, rest_free_length
-from ..soft.params import O_F, O_FL, O_N, O_T, OUT, P_FSOLVE, P_TPAIR, leg_params
+from ..soft.params import O_F, O_FL, O_N, O_T, OUT, P_FSOLVE, P_JTURN, P_TPAIR, leg_params
 from ..soft.rod import LegModel, build_leg, lateral_stiffness
 from ..soft.servo import RPM_TO_RAD_S
 from . import PLANTS, TendonCommand
@@ -91,6 +91,9 @@ class CosseratPlantConfig(PlantConfig):
     # setting down: the time over which the servos wind the tendons in to the angle that carries the weight, within
     # the first settling move of SETTLE_S / SETTLE_ITERATIONS (0: at once; a cable shortened at once whips a soft
     # leg, its nodes at metres per second, before the legs settle)
+    # implicit step: the Jacobians are made afresh once an element has turned this far (rad) since they were made,
+    # whatever their age (0: by age, contact and cable only)
+    jacobian_turn: float = num_field(0.0, lo=0.0, hi=10.0, unit="rad")
     wind_in_s: float = num_field(SETTLE_S / SETTLE_ITERATIONS, lo=0.0, hi=SETTLE_S / SETTLE_ITERATIONS, unit="s")
 
 
@@ -176,6 +179,7 @@ class CosseratPlant:
         if cfg.robot.tendon.antagonist:
             self.par[:, P_TPAIR] = pair_free_length(m, self.par[0], self.free0[0])
         self.par[:, P_FSOLVE] = 1.0 if cfg.plant.friction == "solved" else 0.0
+        self.par[:, P_JTURN] = cfg.plant.jacobian_turn
         self.servo = np.zeros(4)  # servo (tendon) angle, rad
         self.servo_cmd = np.zeros(4)
         sc = cfg.robot.servo

@@ -55,6 +55,7 @@ from .params import (
     P_FSOLVE,
     P_G,
     P_GROUND,
+    P_JTURN,
     P_K,
     P_PAPER,
     P_TFX,
@@ -79,8 +80,9 @@ from .rod import (
 # entries), then these, counted from N: the cable's state, the factorisation's age in steps, 1 + g^T W^-1 u,
 # the step it was made with, how many factorisations the leg has made, the pulling cable's offset at the factoring,
 # how many of its friction solves (plant.friction=solved) stopped unconverged (slotexp.soft.friction), and whether
-# the factorisation's compliance at its pressed nodes is dissipative (friction_dissipative; 1 if so).
-J_CABLE, J_AGE, J_GZ, J_STEP, J_COUNT, J_OFFSET, J_UNSOLVED, J_DISSIPATIVE = range(8)
+# the factorisation's compliance at its pressed nodes is dissipative (friction_dissipative; 1 if so), and the
+# elements' largest turn (rad) summed over the steps since the factorisation (plant.jacobian_turn refactors past it).
+J_CABLE, J_AGE, J_GZ, J_STEP, J_COUNT, J_OFFSET, J_UNSOLVED, J_DISSIPATIVE, J_TURN = range(9)
 # m: a Newton correction that moves no position by more than this ends the step's iterations (implicit_step)
 NEWTON_TOL = 1e-7
 TANGENT_PASSES = 4  # Newton corrections that linearise the friction by its tangent; later ones by its secant
@@ -357,8 +359,10 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     The factored W and h^2 K are the leg's own state: ``lu``, ``kband``; ``jvec`` = the
     tendon's W^-1 u and grad L; ``jmeta`` = each node's contact regime, then the entries
     ``J_*`` (the cable's state: slack, taut or at the stall; the age; 1 + g^T W^-1 u; the
-    step; the count of factorisations). They are refreshed when the step changes, a node's
-    contact regime or the cable's state changes, or they are ``max_age`` steps old.
+    step; the count of factorisations; the largest element turn summed over the steps since, J_TURN). They are
+    refreshed when the step changes, a node's contact regime or the cable's state changes, they are ``max_age``
+    steps old, or (``par[P_JTURN]`` > 0, ``plant.jacobian_turn``) an element may have turned more than that many
+    radians since they were made: the rod's stiffness turns with its elements.
     ``max_age`` = 1 is the exact linearly implicit Euler step; with larger ages the
     Jacobians are those of up to ``max_age`` - 1 steps earlier (a W-method: still
     consistent, since F is always current; the structural changes that would make it
@@ -415,6 +419,8 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         cable = -cable  # the pair's upper cable
     i_cable, i_age, i_gz, i_step = n + J_CABLE, n + J_AGE, n + J_GZ, n + J_STEP
     fresh = jmeta[i_age] >= max_age or jmeta[i_step] != h or jmeta[i_cable] != cable
+    if par[P_JTURN] > 0.0 and jmeta[n + J_TURN] > par[P_JTURN]:
+        fresh = True  # the elements turned too far since the Jacobians were made
     # the velocity-dependent forces at the start of the step: damping towards the root frame's rigid motion, contact
     for i in range(n):
         gx, gz = root_frame_velocity(pos, i, root)
@@ -532,6 +538,7 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
         jmeta[i_cable] = cable
         jmeta[i_step] = h
         jmeta[i_age] = 0.0
+        jmeta[n + J_TURN] = 0.0
         jmeta[n + J_COUNT] += 1.0
         jmeta[n + J_OFFSET] = offset
     jmeta[i_age] += 1.0
@@ -572,8 +579,11 @@ def implicit_once(state, leg, par, free_length, root, vlat, h, normal, out, work
     for i in range(n):
         pos[i, 0] += h * x[3 * i]
         pos[i, 1] += h * x[3 * i + 1]
+    turn = 0.0
     for e in range(n_el):
         theta[e] += h * x[3 * e + 2]
+        turn = max(turn, abs(h * x[3 * e + 2]))
+    jmeta[n + J_TURN] += turn
     # reaction on the root, consistent with the implicit step (momentum is exchanged exactly): the root
     # rows of h^2 (elastic + tendon) K
     d0, d1 = _root_rows(kband, x)
@@ -784,7 +794,7 @@ def jacobian_state(n_nodes: int, legs: int | None = None) -> JacobianState:
     the first step factors."""
     nd = 3 * n_nodes - 1
     lead = () if legs is None else (legs,)
-    meta = np.zeros(lead + (n_nodes + J_DISSIPATIVE + 1,))
+    meta = np.zeros(lead + (n_nodes + J_TURN + 1,))
     meta[..., n_nodes + J_AGE] = np.inf  # refresh at the first step
     return JacobianState(
         np.zeros(lead + (nd, 9)),

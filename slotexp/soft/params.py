@@ -49,6 +49,7 @@ PAR = (
     "tendon_guide_x",
     "tendon_guide_z",
     "friction_solved",
+    "jacobian_turn",
 )
 (P_G, P_K, P_D, P_MU, P_VEPS, P_GROUND, P_C, P_TK, P_TOFF, P_TMAX, P_TFX, P_TFZ, P_TM, P_NA, P_PAPER, P_KR) = range(16)
 P_MUS, P_VS = 16, 17  # the feet's friction at rest and the speed over which it falls to mu (robot.contact)
@@ -61,6 +62,9 @@ P_TROUTE, P_TGX, P_TGZ = 19, 20, 21
 # (slotexp.soft.friction), 0 it takes the friction's secant slope at the step's start (a plant setting: the
 # coupled plant sets it, the clamped leg's statics leave it 0)
 P_FSOLVE = 22
+# plant.jacobian_turn: the implicit step's Jacobians are made afresh once an element turned this far (rad) since
+# they were made (0: by age, contact and cable only)
+P_JTURN = 23
 # friction: along the leg's plane (the leg's own step); friction_lateral: across it (the coupled plant's torso step)
 # tendon_side: which cable pulls (1: below the centreline, -1: above it, robot.tendon.antagonist; 0: neither)
 OUT = ("root_fx", "root_fz", "root_m", "tension", "normal", "friction", "diverged", "friction_lateral", "tendon_side")
