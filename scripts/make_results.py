@@ -513,14 +513,35 @@ RUNS = {
     # ... at 1 ms with the Jacobians made afresh once an element has turned 0.1 rad (plant.jacobian_turn): without it
     # the searches at 1 ms scored 1-5 candidates failed, the linearly implicit step on an old factorisation blowing
     # up where a tendon whips a grippy, stiff model's leg (docs/results/plant.md, "Jacobians refreshed by turn")
-    "identify_robot_1ms_turn": [
-        "experiment=identify",
-        "plant=cosserat",
-        FITTED,
-        "experiment.max_evals=96",
-        "sim.dt=1e-3",
-        "plant.jacobian_turn=0.1",
-    ],
+    # ... and, so, searches made three ways from three seeds each (their ends' spread against the region they
+    # report): one CMA-ES from the best of 16 design points; three from the best three, sharing the 96 steps; four
+    # from the best four of 64 (docs/results/gaits.md, "Where a search ends")
+    **{
+        f"identify_robot_1ms_turn{how}{'' if seed == 1 else f'_seed{seed}'}": [
+            "experiment=identify",
+            "plant=cosserat",
+            FITTED,
+            "experiment.max_evals=96",
+            "sim.dt=1e-3",
+            "plant.jacobian_turn=0.1",
+            f"experiment.seed={seed}",
+            *extra,
+        ]
+        for how, extra in (
+            ("", []),
+            ("_restarts3", ["experiment.restarts=3"]),
+            ("_design64_restarts4", ["experiment.initial_design=64", "experiment.restarts=4"]),
+            # ... and every settling move wound in (plant.wind_in_every_move): the soft candidates that still failed
+            *(
+                (f"_wound{how}", [*extra, "plant.wind_in_every_move=true"])
+                for how, extra in (
+                    ("", []),
+                    ("_design64_restarts4", ["experiment.initial_design=64", "experiment.restarts=4"]),
+                )
+            ),
+        )
+        for seed in (1, 2, 3)
+    },
     # Robust fits with the tendon's uncertain geometry: along the leg (its offset; the worst cost under E and
     # friction 10 % either way), and as a bowstring (its guide's height; the worst under each of the five settings
     # that set how far a foot moves and grips, 10 % either way: the first fit was knife-edged in those it did not

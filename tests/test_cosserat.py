@@ -446,6 +446,22 @@ def test_tendons_wound_in_while_the_robot_is_set_down_do_not_whip_soft_legs():
         load("plant=cosserat", "plant.wind_in_s=0.1")
 
 
+def test_every_settling_moves_change_wound_in_sets_a_soft_model_down_at_1_ms_where_taken_at_once_it_fails():
+    # The settling moves after the first change the angle that carries the weight by a Newton step on the feet's
+    # load; taken at once it whips soft legs (E 5.9e6 Pa, a high horn zero): at 1 ms no retake recovers it (0.056
+    # s, the second move). Wound in over plant.wind_in_s like the first, the robot is set down with no retake,
+    # at rest on its feet; on the default model the option changes nothing the first move did not.
+    soft = ("sim.dt=1e-3", "plant.jacobian_turn=0.1", "robot.contact.friction=0.627781",
+            "robot.servo.horn_zero_deg=[139.086,139.086,139.086,139.086]", "robot.leg.youngs_modulus=5866560",
+            "robot.leg.damping_per_s=17.7972")  # fmt: skip
+    with pytest.raises(DivergenceError, match=r"diverged at t = 0.05"):
+        _plant(*soft)
+    cfg, wound = _plant(*soft, "plant.wind_in_every_move=true", "plant.retakes=0")
+    assert wound.retaken_periods == 0 and np.abs(wound.vel).max() < 1e-2
+    # on its feet: they carry most of the weight the servos were wound to carry while the torso was held (87 %)
+    assert wound.normal.sum() > 0.8 * _total_mass(wound) * cfg.sim.gravity
+
+
 def test_a_diverging_period_is_retaken_by_backward_euler_alone_or_in_a_batch():
     # Soft legs (E 4e6 Pa, the low end of the identification's range) curled by the settle's tendon angle,
     # taken at once, turn their elements tenths of a radian per step: one linearisation per step blows up (the

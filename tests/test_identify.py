@@ -218,6 +218,8 @@ def _power(task: tuple[int, float]) -> float:
         ("experiment.schedules=[forward,walk_60]", ["walk_60", "held-out"]),
         # a range the setting itself refuses would write a fit the tool refuses to run
         ("experiment.parameters=[{path: robot.contact.friction, lo: -1, hi: 1}]", ["-1 to 1", "narrow the range"]),
+        ("experiment.restarts=30", ["restarts = 30", "initial_design >= 29"]),
+        ("experiment.restarts=16", ["shared by 16 searches", "max_evals >= 128"]),
     ],
 )
 def test_bad_identification_settings_get_one_line(tmp_path: Path, override: str, names: list[str]):
@@ -236,6 +238,25 @@ def test_an_initial_design_is_evaluated_first_and_the_search_starts_from_its_bes
     best = first.loc[first["cost"].idxmin()]
     assert candidates.iloc[6]["robot.servo.horn_zero_deg"] == pytest.approx(best["robot.servo.horn_zero_deg"], rel=1e-5)
     assert len(candidates) == 6 + 1 + 4 + 8  # the design with the start, the search's start, 4, the scan of 8
+
+
+def test_restarted_searches_start_from_the_designs_best_points_in_turn(tmp_path: Path):
+    args = (
+        "experiment.max_evals=8",
+        "experiment.initial_design=5",
+        "experiment.restarts=2",
+        "experiment.slice_points=0",
+    )
+    run(load(*SMALL, *args, "experiment.parallel.workers=1"), tmp_path, "{}")
+    candidates = pd.read_csv(tmp_path / "candidates.csv")
+    sizes = candidates.groupby("generation").size().tolist()
+    assert sizes == [6, 1, 4, 1, 4]  # the design; each search: its start, then one generation of 4 (8 shared by 2)
+    design = candidates[candidates["generation"] == 0].sort_values("cost", kind="stable")
+    starts = [candidates[candidates["generation"] == g].iloc[0] for g in (1, 3)]
+    for start, (_, point) in zip(starts, design.head(2).iterrows(), strict=True):
+        assert start["robot.servo.horn_zero_deg"] == point["robot.servo.horn_zero_deg"]
+    fit = yaml.safe_load((tmp_path / "fit.yaml").read_text())
+    assert fit["cost"] == pytest.approx(candidates["cost"].min())  # the best of both searches
 
 
 def test_a_robust_fit_costs_each_candidate_its_worst_run_under_the_perturbations(tmp_path: Path):

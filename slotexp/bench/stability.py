@@ -5,14 +5,15 @@ must not mistake the step blowing up for a bad model. Each row plays the robot's
 (:func:`slotexp.locomotion.schedules.play`, one batch, :data:`DURATION_S` each) on one model at one plant
 setting and reports whether all ran to the end, where the first failure came, and how many periods
 ``plant.retakes`` took again. The models: the default and the corners of the identification's range (friction
-0.05 and 1.5, E 4e6 and 2.5e7 Pa) at its lowest damping (5 /s), where a step is hardest pressed, and a grippy,
-stiff model inside it at a low horn zero, where the searches at 1 ms failed. The settings: the default (the feet's
-friction solved at the step's end at 5e-4 s, the tendons wound in over the first settling move) with and without
-retakes, set down at once, and at 1 and 2 ms; with the Jacobians refreshed by turn (``plant.jacobian_turn``) at
-each of those steps; the secant friction at 2e-4 s with
-the tendons taken at once (the default before), without retakes, wound in, and at 5e-4 s; and backward Euler
-(``plant.newton``) at 1, 5 and 10 ms. Speed columns: robot-seconds simulated per wall second (the kernels
-compiled or loaded first, by a short run that is not timed).
+0.05 and 1.5, E 4e6 and 2.5e7 Pa) at its lowest damping (5 /s), where a step is hardest pressed, and, where the
+searches at 1 ms failed, a grippy, stiff model inside it at a low horn zero and a soft one at a high horn zero.
+The settings: the default (the feet's friction solved at the step's end at 5e-4 s, the tendons wound in over the
+first settling move) with and without retakes, set down at once, and at 1 and 2 ms; with the Jacobians refreshed
+by turn (``plant.jacobian_turn``) at each of those steps, and so with every settling move's change wound in
+(``plant.wind_in_every_move``); the secant friction at 2e-4 s with the tendons taken at once (the default
+before), without retakes, wound in, and at 5e-4 s; and backward Euler (``plant.newton``) at 1, 5 and 10 ms.
+Speed columns: robot-seconds simulated per wall second (the kernels compiled or loaded first, by a short run
+that is not timed).
 """
 
 from __future__ import annotations
@@ -56,9 +57,20 @@ MODELS = (
                 "robot.servo.horn_zero_deg": 89.66,
             },
         ),
+        # soft at a high horn zero, where the later settling moves' change, taken at once, whips the legs
+        (
+            "mu 0.63, E 5.87e6, c 17.8, horn zero 139",
+            {
+                "robot.contact.friction": 0.627781,
+                "robot.leg.youngs_modulus": 5.86656e6,
+                "robot.leg.damping_per_s": 17.7972,
+                "robot.servo.horn_zero_deg": 139.086,
+            },
+        ),
     )
 )
 TURN_RAD = 0.1  # plant.jacobian_turn for the rows that refresh the Jacobians by turn
+BY_TURN = {"plant.jacobian_turn": TURN_RAD}
 # (label, the plant's settings by config path; the rest the config's)
 SETTINGS = (
     ("default step", {}),
@@ -67,10 +79,16 @@ SETTINGS = (
     *((f"default, {dt * 1e3:g} ms", {"sim.dt": dt}) for dt in (1e-3, 2e-3)),
     *((f"default, {dt * 1e3:g} ms, set down at once", {"sim.dt": dt, "plant.wind_in_s": 0.0}) for dt in (1e-3, 2e-3)),
     # the Jacobians made afresh once an element has turned TURN_RAD (plant.jacobian_turn)
-    ("default step, Jacobians by turn", {"plant.jacobian_turn": TURN_RAD}),
+    ("default step, Jacobians by turn", BY_TURN),
+    *((f"default, {dt * 1e3:g} ms, Jacobians by turn", {"sim.dt": dt, **BY_TURN}) for dt in (1e-3, 2e-3)),
+    # ... and every settling move's change wound in (plant.wind_in_every_move)
     *(
-        (f"default, {dt * 1e3:g} ms, Jacobians by turn", {"sim.dt": dt, "plant.jacobian_turn": TURN_RAD})
-        for dt in (1e-3, 2e-3)
+        (f"{label}, Jacobians by turn, every move wound in", {**at, **BY_TURN, "plant.wind_in_every_move": True})
+        for label, at in (
+            ("default step", {}),
+            ("default, 1 ms", {"sim.dt": 1e-3}),
+            ("default, 2 ms", {"sim.dt": 2e-3}),
+        )
     ),
     ("secant, 0.2 ms, at once (the default before)", PREVIOUS_DEFAULT),
     ("secant, 0.2 ms, at once, no retakes", {**PREVIOUS_DEFAULT, "plant.retakes": 0}),

@@ -30,7 +30,8 @@ processes, every core, by default; a Dask cluster as a setting). Writes ``fit.ya
 ``logs/identify.mcap``. After the search, each parameter is scanned over its whole range
 with the others at the best (``experiment.slice_points`` each): a search that converges
 visits little of a weakly constrained parameter's range, so without the scan the region
-would describe where the search went, not where the cost allows. The best is the lowest
+would describe where the search went, not where the cost allows. With ``experiment.restarts`` the
+searches are several, each from the next best design point, sharing ``max_evals``. The best is the lowest
 cost of every candidate, the scans' included. With ``experiment.robust.parameters`` the
 fit is robust: each candidate also runs with each of those settings moved by
 +-``experiment.robust.fraction`` of its value, and its cost is the worst of those runs'
@@ -140,6 +141,9 @@ class IdentifyExperiment:
     # Latin-hypercube points over the ranges evaluated first; the search starts from the best of them and the
     # config's own values (a fit from the config alone can settle in a local minimum: docs/results/gaits.md)
     initial_design: int = num_field(16, lo=0, hi=10000, unit="candidates")
+    # CMA-ES runs, each from the next best of the design's points (and the config's), max_evals shared between them:
+    # one search's end depends on its path by more than the region it reports (docs/results/gaits.md)
+    restarts: int = num_field(1, lo=1, hi=100, unit="searches")
     # after the search: each parameter scanned over its range at this many points, the others at the best
     slice_points: int = num_field(8, lo=0, hi=1000, unit="candidates per parameter")
     seed: int = num_field(1, lo=0, unit="")
@@ -164,6 +168,16 @@ class IdentifyExperiment:
                 raise ConfigError(
                     f"experiment.tracks has a track for {gait!r}, which is not in experiment.schedules: add it there"
                 )
+        if self.restarts > 1 and self.restarts > self.initial_design + 1:
+            raise ConfigError(
+                f"experiment.restarts = {self.restarts} searches start from the design's best points and the config's: "
+                f"give experiment.initial_design >= {self.restarts - 1}"
+            )
+        if self.restarts > 1 and self.max_evals // self.restarts < self.popsize:
+            raise ConfigError(
+                f"experiment.max_evals = {self.max_evals} shared by {self.restarts} searches leaves each less than a "
+                f"generation of experiment.popsize = {self.popsize}: give max_evals >= {self.restarts * self.popsize}"
+            )
         if not self.parameters:
             raise ConfigError("experiment.parameters is empty: name at least one setting to fit")
         paths = [p.path for p in self.parameters]
@@ -548,8 +562,10 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         # every evaluation: the start and the design, the search's start and its whole generations within
         # max_evals, the scan, the best run again (CMA-ES may stop sooner: the bar is closed at the count done)
         design = exp.initial_design + 1 if exp.initial_design > 0 else 0
-        generations = exp.max_evals // exp.popsize * exp.popsize
-        task = bar.add_task("identify", total=design + 1 + generations + k * exp.slice_points + 1)
+        starts = min(exp.restarts, max(design, 1))
+        budget = exp.max_evals // starts  # each search's
+        generations = starts * (budget // exp.popsize * exp.popsize + 1)
+        task = bar.add_task("identify", total=design + generations + k * exp.slice_points + 1)
         written = 0
         generation = 0
 
@@ -592,21 +608,27 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
             bar.advance(task, len(us))
             return costs
 
-        if exp.initial_design > 0:  # the start and a space-filling design, one batch; the best is the start
+        firsts = [x0]
+        if exp.initial_design > 0:  # the start and a space-filling design, one batch; the best are the starts
             from scipy.stats import qmc
 
             design = qmc.LatinHypercube(d=k, seed=exp.seed).random(exp.initial_design)
             points = [x0] + [np.concatenate([u, x0[k:]]) for u in design]
-            x0 = points[int(np.argmin(evaluate_generation(points)))]
-        best_cost, best_u = search(
-            evaluate_generation,
-            x0,
-            sigma0=exp.sigma0,
-            popsize=exp.popsize,
-            max_evals=exp.max_evals,
-            seed=exp.seed,
-            bounds=(np.zeros(len(x0)), np.ones(len(x0))),
-        )
+            order = np.argsort(evaluate_generation(points), kind="stable")
+            firsts = [points[i] for i in order[:starts]]
+        best_cost, best_u = math.inf, firsts[0]
+        for n, first in enumerate(firsts):  # a search from each start, with its own seed
+            cost, u = search(
+                evaluate_generation,
+                first,
+                sigma0=exp.sigma0,
+                popsize=exp.popsize,
+                max_evals=budget,
+                seed=exp.seed + n,
+                bounds=(np.zeros(len(first)), np.ones(len(first))),
+            )
+            if cost < best_cost:
+                best_cost, best_u = cost, u
         if exp.slice_points > 0:  # each parameter across its range, the others at the best: one batch
             grid = np.linspace(0.0, 1.0, exp.slice_points)
             points = [np.concatenate([best_u[:i], [g], best_u[i + 1 :]]) for i in range(k) for g in grid]

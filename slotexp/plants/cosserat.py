@@ -95,6 +95,9 @@ class CosseratPlantConfig(PlantConfig):
     # whatever their age (0: by age, contact and cable only)
     jacobian_turn: float = num_field(0.0, lo=0.0, hi=10.0, unit="rad")
     wind_in_s: float = num_field(SETTLE_S / SETTLE_ITERATIONS, lo=0.0, hi=SETTLE_S / SETTLE_ITERATIONS, unit="s")
+    # ... in every settling move, each move's change of the angle that carries the weight (false: the first move's
+    # only, the later moves' changes taken at once, which whips soft legs: docs/results/plant.md)
+    wind_in_every_move: bool = False
 
 
 @PLANTS.register()
@@ -301,16 +304,23 @@ class CosseratPlant:
         lowering = SETTLE_ITERATIONS // 2
         move = seconds / SETTLE_ITERATIONS / LOWERING_MOVES
         wind_in = self.cfg.plant.wind_in_s
+        previous = 0.0  # rad: the servos' angle before this settling move
         for k in range(SETTLE_ITERATIONS):
-            self.servo[:] = self.servo_cmd[:] = np.deg2rad(angle)
-            if k < lowering:  # in small moves, so that every leg deforms continuously onto the ground
+            target = np.deg2rad(angle)
+            self.servo[:] = self.servo_cmd[:] = target
+            # the servos wind the tendons in over plant.wind_in_s: in the first move, or in every one
+            ramp = wind_in > 0.0 and (k == 0 or self.cfg.plant.wind_in_every_move)
+            if k < lowering or ramp:  # in small moves, so that every leg deforms continuously onto the ground
                 for j, s in enumerate(np.linspace(k, k + 1, LOWERING_MOVES + 1)[1:] / lowering):
-                    if k == 0 and wind_in > 0.0:  # the servos wind the tendons in over plant.wind_in_s
-                        self.servo[:] = self.servo_cmd[:] = np.deg2rad(angle) * min(1.0, (j + 1) * move / wind_in)
-                    self.torso[0:7] = pose_between(self.start_pose, self.target_pose, float(s))
+                    if ramp:
+                        level = previous + (target - previous) * min(1.0, (j + 1) * move / wind_in)
+                        self.servo[:] = self.servo_cmd[:] = level
+                    if k < lowering:
+                        self.torso[0:7] = pose_between(self.start_pose, self.target_pose, float(s))
                     self._run(move, np.zeros(3), hold=True)
             else:
                 self._run(seconds / SETTLE_ITERATIONS, np.zeros(3), hold=True)
+            previous = target
             angle = float(np.clip(angle + (weight - self.out[:, O_N].sum()) / slope, 0.0, top))
         self.time = 0.0
 
