@@ -88,12 +88,12 @@ class CosseratPlantConfig(PlantConfig):
     # or linearised at its secant slope at the step's start (secant: as if it weighed h mu N / |v| more). The
     # symplectic step solves each node's friction itself, as solved does.
     friction: str = choice_field("solved", "secant", "solved")
-    # setting down: the time over which the servos wind the tendons in to the angle that carries the weight, within
-    # the first settling move of SETTLE_S / SETTLE_ITERATIONS (0: at once; a cable shortened at once whips a soft
-    # leg, its nodes at metres per second, before the legs settle)
     # implicit step: the Jacobians are made afresh once an element has turned this far (rad) since they were made,
     # whatever their age (0: by age, contact and cable only)
     jacobian_turn: float = num_field(0.0, lo=0.0, hi=10.0, unit="rad")
+    # setting down: the time over which the servos wind the tendons in to the angle that carries the weight, within
+    # the first settling move of SETTLE_S / SETTLE_ITERATIONS (0: at once; a cable shortened at once whips a soft
+    # leg, its nodes at metres per second, before the legs settle)
     wind_in_s: float = num_field(SETTLE_S / SETTLE_ITERATIONS, lo=0.0, hi=SETTLE_S / SETTLE_ITERATIONS, unit="s")
     # ... in every settling move, each move's change of the angle that carries the weight (false: the first move's
     # only, the later moves' changes taken at once, which whips soft legs: docs/results/plant.md)
