@@ -451,12 +451,19 @@ def test_every_settling_moves_change_wound_in_sets_a_soft_model_down_at_1_ms_whe
     # load; taken at once it whips soft legs (E 5.9e6 Pa, a high horn zero): at 1 ms no retake recovers it (0.056
     # s, the second move). Wound in over plant.wind_in_s like the first, the robot is set down with no retake,
     # at rest on its feet; on the default model the option changes nothing the first move did not.
-    soft = ("sim.dt=1e-3", "plant.jacobian_turn=0.1", "robot.contact.friction=0.627781",
-            "robot.servo.horn_zero_deg=[139.086,139.086,139.086,139.086]", "robot.leg.youngs_modulus=5866560",
-            "robot.leg.damping_per_s=17.7972")  # fmt: skip
+    from slotexp.bench import stability
+    from slotexp.config import with_settings
+
+    soft = {**dict(stability.MODELS)["mu 0.63, E 5.87e6, c 17.8, horn zero 139"], "sim.dt": 1e-3, **stability.BY_TURN}
+
+    def set_down(settings: dict) -> tuple:
+        cfg = with_settings(load("plant=cosserat"), {**soft, **settings})
+        robot = build_robot(cfg.robot)
+        return cfg, CosseratPlant(cfg, robot, nominal_state(robot))
+
     with pytest.raises(DivergenceError, match=r"diverged at t = 0.05"):
-        _plant(*soft)
-    cfg, wound = _plant(*soft, "plant.wind_in_every_move=true", "plant.retakes=0")
+        set_down({})
+    cfg, wound = set_down({"plant.wind_in_every_move": True, "plant.retakes": 0})
     assert wound.retaken_periods == 0 and np.abs(wound.vel).max() < 1e-2
     # on its feet: they carry most of the weight the servos were wound to carry while the torso was held (87 %)
     assert wound.normal.sum() > 0.8 * _total_mass(wound) * cfg.sim.gravity
@@ -500,13 +507,15 @@ def test_a_crawl_on_a_grippy_stiff_model_needs_no_retake_at_1_ms_with_its_jacobi
     # elements turn tenths of a radian within the five steps a factorisation serves, and the linearly implicit step
     # on the old one diverges at 1 ms (grippy, stiff: friction 1.15, E 2.2e7 Pa). Refactored once an element has
     # turned 0.1 rad (plant.jacobian_turn), the same crawl runs through with no period retaken.
+    from slotexp.bench import stability
+    from slotexp.config import with_settings
     from slotexp.locomotion.schedules import play
 
-    model = ("sim.dt=1e-3", "robot.contact.friction=1.1458", "robot.servo.horn_zero_deg=[89.66,89.66,89.66,89.66]",
-             "robot.leg.youngs_modulus=2.188e7", "robot.leg.damping_per_s=9.16")  # fmt: skip
+    grippy = {**dict(stability.MODELS)["mu 1.15, E 2.19e7, c 9.2, horn zero 89.7"], "sim.dt": 1e-3}
+    cfg = load("plant=cosserat")
     with pytest.raises(DivergenceError):
-        play(load("plant=cosserat", *model, "plant.retakes=0"), ["crawl_forward"], 3.0, 50.0)
-    t, xs, retaken = play(load("plant=cosserat", *model, "plant.jacobian_turn=0.1"), ["crawl_forward"], 3.0, 50.0)
+        play(with_settings(cfg, {**grippy, "plant.retakes": 0}), ["crawl_forward"], 3.0, 50.0)
+    t, xs, retaken = play(with_settings(cfg, {**grippy, **stability.BY_TURN}), ["crawl_forward"], 3.0, 50.0)
     assert retaken.tolist() == [0] and np.isfinite(xs).all()
     assert xs[0, -1, 3] > 0.02  # it crawled forward (the state: attitude, position, ...), more than 20 mm in 3 s
 

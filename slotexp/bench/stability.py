@@ -69,8 +69,7 @@ MODELS = (
         ),
     )
 )
-TURN_RAD = 0.1  # plant.jacobian_turn for the rows that refresh the Jacobians by turn
-BY_TURN = {"plant.jacobian_turn": TURN_RAD}
+BY_TURN = {"plant.jacobian_turn": 0.1}  # the rows that refresh the Jacobians by turn
 # (label, the plant's settings by config path; the rest the config's)
 SETTINGS = (
     ("default step", {}),
@@ -78,7 +77,7 @@ SETTINGS = (
     ("default step, set down at once", {"plant.wind_in_s": 0.0}),
     *((f"default, {dt * 1e3:g} ms", {"sim.dt": dt}) for dt in (1e-3, 2e-3)),
     *((f"default, {dt * 1e3:g} ms, set down at once", {"sim.dt": dt, "plant.wind_in_s": 0.0}) for dt in (1e-3, 2e-3)),
-    # the Jacobians made afresh once an element has turned TURN_RAD (plant.jacobian_turn)
+    # the Jacobians made afresh once an element has turned 0.1 rad (plant.jacobian_turn)
     ("default step, Jacobians by turn", BY_TURN),
     *((f"default, {dt * 1e3:g} ms, Jacobians by turn", {"sim.dt": dt, **BY_TURN}) for dt in (1e-3, 2e-3)),
     # ... and every settling move's change wound in (plant.wind_in_every_move)

@@ -562,9 +562,8 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
         # every evaluation: the start and the design, the search's start and its whole generations within
         # max_evals, the scan, the best run again (CMA-ES may stop sooner: the bar is closed at the count done)
         design = exp.initial_design + 1 if exp.initial_design > 0 else 0
-        starts = min(exp.restarts, max(design, 1))
-        budget = exp.max_evals // starts  # each search's
-        generations = starts * (budget // exp.popsize * exp.popsize + 1)
+        budget = exp.max_evals // exp.restarts  # each search's (check(): restarts > 1 has the design to start from)
+        generations = exp.restarts * (budget // exp.popsize * exp.popsize + 1)
         task = bar.add_task("identify", total=design + generations + k * exp.slice_points + 1)
         written = 0
         generation = 0
@@ -615,7 +614,7 @@ def run(cfg: SlotConfig, out_dir: Path, resolved_yaml: str) -> None:
             design = qmc.LatinHypercube(d=k, seed=exp.seed).random(exp.initial_design)
             points = [x0] + [np.concatenate([u, x0[k:]]) for u in design]
             order = np.argsort(evaluate_generation(points), kind="stable")
-            firsts = [points[i] for i in order[:starts]]
+            firsts = [points[i] for i in order[: exp.restarts]]
         best_cost, best_u = math.inf, firsts[0]
         for n, first in enumerate(firsts):  # a search from each start, with its own seed
             cost, u = search(
