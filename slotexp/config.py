@@ -107,6 +107,11 @@ class LegConfig:
     yaw_deg: list[float] = vec_field([45.0, 135.0, 225.0, 315.0], length=4, lo=-360.0, hi=360.0, unit="deg")
     length: float = num_field(0.19, lo=0.0, lo_open=True, unit="m")
     n_nodes: int = num_field(31, lo=3, unit="nodes")
+    # the element just before the tendon's anchor node split into this many (1: a uniform mesh). The cable's bending
+    # moment ends at the anchor, a jump a uniform mesh resolves to first order in its element's length: at 31 nodes
+    # the cable bends a span half an element short, its tension 6 % and the free leg's tip travel 2 % off the
+    # converged rod (slotexp/soft/rod.py, docs/results/legs.md)
+    anchor_refinement: int = num_field(1, lo=1, hi=64, unit="")
     mass: float = num_field(0.04, lo=0.0, unit="kg")
     width: float = num_field(0.020, lo=0.0, lo_open=True, unit="m")
     thickness_root: float = num_field(0.0135, lo=0.0, lo_open=True, unit="m")

@@ -24,8 +24,11 @@ class RobotModel:
     stance_height: float  # m, torso centre above flat ground with the legs at rest
 
 
-def rest_shape_points(coeffs: list[float], length: float, n: int = 400) -> np.ndarray:
-    """Points (x, z) of the rest shape z(x), cut at arc length ``length`` from the root.
+def rest_shape_points(
+    coeffs: list[float], length: float, n: int = 400, s_nodes: np.ndarray | None = None
+) -> np.ndarray:
+    """Points (x, z) of the rest shape z(x), cut at arc length ``length`` from the root: ``n`` evenly spaced
+    along it, or at the arc lengths ``s_nodes`` (m, n of them) where given.
 
     The authors' cubic is given in x; the leg is inextensible at rest, so we walk
     along the curve until its arc length equals the leg length.
@@ -34,7 +37,8 @@ def rest_shape_points(coeffs: list[float], length: float, n: int = 400) -> np.nd
     x = np.linspace(0.0, 2.0 * length, 20 * n)
     z = poly(x)
     s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(z)))])
-    s_nodes = np.linspace(0.0, length, n)
+    if s_nodes is None:
+        s_nodes = np.linspace(0.0, length, n)
     return np.column_stack([np.interp(s_nodes, s, x), np.interp(s_nodes, s, z)])
 
 

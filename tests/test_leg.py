@@ -15,6 +15,7 @@ from slotexp.soft.rod import (
     elastic_hessian_band,
     lateral_stiffness,
     model_from_shape,
+    node_arclengths,
 )
 from tests.helpers import load as load_config
 
@@ -146,6 +147,46 @@ def test_node_convergence_default_leg_under_gravity_and_tendon():
         sim.free_length = tendon_length(sim.pos, sim.theta, sim.root[4], sim.par) - 0.004  # 4 mm wound in
         tips[n] = settle(sim, "implicit", 2e-5 if n == 121 else 1e-4, 2.0).tip
     assert np.linalg.norm(tips[31] - tips[121]) < 1e-3
+
+
+def _free_leg_tension(n: int, refinement: int) -> float:
+    """The default leg's tendon tension (N) at 80 deg, clamped, free of the ground and gravity, settled."""
+    from slotexp.soft.statics import clamped_leg
+    from slotexp.soft.statics import settle as settle_load
+
+    cfg = load_config(
+        "experiment=leg", "sim.gravity=0", "leg_load.ground=false", "leg_load.tendon_deg=80",
+        "leg_load.settle_time=1.5", f"robot.leg.n_nodes={n}", f"robot.leg.anchor_refinement={refinement}",
+    )  # fmt: skip
+    return settle_load(clamped_leg(cfg), cfg)["tension_n"]
+
+
+def test_the_mesh_refined_before_the_tendons_anchor_keeps_the_anchor_and_the_leg():
+    cfg = LegConfig(anchor_refinement=4)
+    s, anchor = node_arclengths(cfg, 2.0 / 3.0)
+    uniform_s = np.linspace(0.0, cfg.length, cfg.n_nodes)
+    assert s.shape == (cfg.n_nodes + 3,) and anchor == 23
+    assert s[anchor] == pytest.approx(uniform_s[20]) and np.allclose(np.diff(s[19:24]), cfg.length / 30 / 4)
+    refined = build_leg(cfg, anchor_fraction=2.0 / 3.0)
+    assert refined.n_nodes == 34 and refined.length == pytest.approx(build_leg(cfg).length, rel=1e-6)
+    assert refined.mass.sum() == pytest.approx(build_leg(cfg).mass.sum(), rel=1e-6)
+    # unrefined, the mesh is the uniform one exactly (the default changes no bit)
+    plain, with_fraction = build_leg(LegConfig()), build_leg(LegConfig(), anchor_fraction=2.0 / 3.0)
+    assert all(np.array_equal(a, b) for a, b in zip(plain, with_fraction, strict=True))
+
+
+def test_the_tendons_anchor_error_is_first_order_in_the_element_before_it_and_refining_it_converges():
+    # The cable bends the leg up to its anchor; the staggered rod counts its turn to the last routed element's middle,
+    # half an element short. Uniform meshes converge at first order (61 -> 121 nodes halves the error); splitting the
+    # one element before the anchor converges the same way, and 7 extra nodes beat 90 more spread evenly.
+    uniform = {n: _free_leg_tension(n, 1) for n in (31, 61, 121)}
+    limit = 2.0 * uniform[121] - uniform[61]  # Richardson, first order in the element length
+    assert (uniform[31] - uniform[61]) / (uniform[61] - uniform[121]) == pytest.approx(2.0, rel=0.1)
+    refined = {r: _free_leg_tension(31, r) for r in (2, 4, 8)}
+    assert (uniform[31] - refined[2]) / (refined[2] - refined[4]) == pytest.approx(2.0, rel=0.1)
+    assert (refined[2] - refined[4]) / (refined[4] - refined[8]) == pytest.approx(2.0, rel=0.1)
+    assert uniform[31] / limit - 1.0 > 0.05  # the uniform 31-node leg: 6 % too taut
+    assert abs(refined[8] / limit - 1.0) < 0.01 and abs(refined[8] - limit) < abs(uniform[121] - limit)
 
 
 def test_symplectic_energy_drift_without_damping():

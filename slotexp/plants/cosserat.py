@@ -147,7 +147,7 @@ class CosseratPlant:
         self.implicit = cfg.plant.integrator == "implicit"
         self.retaken_periods = 0  # control periods taken again after their steps diverged (_retake)
         leg_cfg = cfg.robot.leg
-        self.model: LegModel = build_leg(leg_cfg)
+        self.model: LegModel = build_leg(leg_cfg, anchor_fraction=cfg.robot.tendon.routed_fraction)
         self.wave_speed = float(np.sqrt(leg_cfg.youngs_modulus / leg_cfg.density))  # m/s: no node moves faster
         m = self.model
         n = m.n_nodes

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..config import SlotConfig
+from .rod import node_arclengths
 
 PAR = (
     "gravity",
@@ -90,11 +91,11 @@ def leg_params(
 
     ``ground`` and the static tip load are the caller's: the plant's legs stand on
     the ground with no tip load, the clamped leg takes them from ``cfg.leg_load``.
-    The tendon is anchored at the node ``routed_fraction`` of the way down the leg;
+    The tendon is anchored at the node ``routed_fraction`` of the way down the leg (of the mesh
+    :func:`~slotexp.soft.rod.build_leg` makes with that fraction);
     its tension is capped at the servo's stall torque over the pulley radius.
     """
     leg, contact, tendon = cfg.robot.leg, cfg.robot.contact, cfg.robot.tendon
-    n = int(leg.n_nodes)
     return make_par(
         gravity=cfg.sim.gravity,
         k_contact=contact.stiffness,
@@ -109,7 +110,7 @@ def leg_params(
         tip_fx=tip_force[0],
         tip_fz=tip_force[1],
         tip_m=tip_moment,
-        n_anchor=max(1, int(round(tendon.routed_fraction * (n - 1)))),
+        n_anchor=node_arclengths(leg, tendon.routed_fraction)[1],
         paper_model=1.0 if leg.model == "paper" else 0.0,
         k_restore=leg.restoring_stiffness,
         mu_static=0.0 if contact.static_friction is None else contact.static_friction,  # 0: plain Coulomb

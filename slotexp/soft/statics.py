@@ -15,7 +15,7 @@ def clamped_leg(cfg: SlotConfig, root_height: float | None = None) -> LegSim:
     """A leg from ``cfg.robot`` with the loads of ``cfg.leg_load`` (tendon at 0 until set)."""
     leg = cfg.robot.leg
     load = cfg.leg_load
-    model = build_leg(leg)
+    model = build_leg(leg, anchor_fraction=cfg.robot.tendon.routed_fraction)
     par = leg_params(cfg, ground=load.ground, tip_force=load.tip_force, tip_moment=load.tip_moment)
     free0 = rest_free_length(model, par, cfg.robot.tendon.slack)
     if cfg.robot.tendon.antagonist:
