@@ -814,6 +814,7 @@ BENCHES = {
     "bench_mpc": ["mpc"],
     "bench_leg": ["leg"],
     "bench_stability": ["stability"],  # which steps carry the gaits through across the identification's models
+    "bench_mesh": ["mesh"],  # the leg's mesh against its converged limit, clamped and in closed loop
     "rigid_bench": ["rigid"],
     "bench_scene": ["scene"],  # what logging the 3D scene costs the closed loop, on each plant
     "bench_scene_ideal": ["scene", "plant=ideal"],

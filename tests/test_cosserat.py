@@ -378,7 +378,8 @@ def test_a_case_whose_reference_is_not_converged_gives_no_verdict():
     """The bench's rule: a setting is as accurate as the yardstick can tell where the reference's own half step
     is within the tolerance; where that half step is out, no row of the case is called in or out."""
     from slotexp.bench import BenchRow
-    from slotexp.bench.leg import _resolved
+    from slotexp.bench._accuracy import resolved
+    from slotexp.bench.leg import HALF_STEP
 
     def rows(half_in: bool) -> list[BenchRow]:
         return [
@@ -386,7 +387,7 @@ def test_a_case_whose_reference_is_not_converged_gives_no_verdict():
             BenchRow("accuracy", "c, implicit dt=0.0001 age 1", 1.0, 1.0, 1.0, {"within_tolerance": True}),
             BenchRow(
                 "accuracy",
-                "c, implicit dt=1.25e-05 age 1 (the reference's half step)",
+                f"c, implicit dt=1.25e-05 age 1 {HALF_STEP}",
                 1.0,
                 1.0,
                 1.0,
@@ -395,10 +396,10 @@ def test_a_case_whose_reference_is_not_converged_gives_no_verdict():
             BenchRow("accuracy", "c, implicit dt=0.01: diverged", np.nan, np.nan, 0.0, {"error": "diverged"}),
         ]
 
-    converged = _resolved(rows(True))
+    converged = resolved(rows(True), HALF_STEP)
     assert [r.extra.get("within_tolerance") for r in converged] == [False, True, True, None]
     assert all(r.extra["resolved"] for r in converged[:3])
-    unresolved = _resolved(rows(False))
+    unresolved = resolved(rows(False), HALF_STEP)
     assert [r.extra.get("within_tolerance") for r in unresolved] == [None, None, None, None]
     assert not any(r.extra["resolved"] for r in unresolved[:3]) and "resolved" not in unresolved[3].extra
 

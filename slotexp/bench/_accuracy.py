@@ -34,6 +34,7 @@ from ..config import SlotConfig
 from ..metrics import wrap_angle
 from ..simulation import run_closed_loop
 
+REFERENCE_DT = 2.5e-5  # s, implicit with a fresh Jacobian every step: the converged closed-loop reference
 SPEED_FROM_S = 2.0  # gait speed is measured after this (the start-up)
 GAIT_SPEED = 0.005  # m/s: a reference slower than this is not walking (a standing push), its speed is not judged
 # what a setting may differ from the reference by and still count as accurate (the gait speed as in the
@@ -211,3 +212,18 @@ def within(result: dict[str, float]) -> bool:
     """Whether a :func:`compare` result is inside :data:`TOLERANCE` (a speed error that is NaN, where the
     reference does not walk, is not judged)."""
     return all(not abs(result[key]) > limit for key, limit in TOLERANCE.items())
+
+
+def resolved(case_rows: list, check: str) -> list:
+    """One case's rows (:class:`~slotexp.bench.BenchRow`), with no verdict where the case cannot give one: when the
+    row whose label holds ``check`` (the reference's half step, or its finer mesh) is outside the tolerance, the
+    reference is not converged on this case and no setting can be told in or out (each row's ``within_tolerance``
+    becomes None and ``resolved`` False; the differences stay)."""
+    rows = [r for r in case_rows if check in r.variant]
+    ok = not rows or bool(rows[0].extra.get("within_tolerance"))
+    for r in case_rows:
+        if "error" not in r.extra:
+            r.extra["resolved"] = ok
+            if not ok:
+                r.extra["within_tolerance"] = None
+    return case_rows

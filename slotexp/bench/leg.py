@@ -53,13 +53,23 @@ from ..soft.integrators import LegSim, stable_dt
 from ..soft.params import P_FSOLVE
 from ..soft.statics import clamped_leg, set_tendon
 from . import BenchRow, register
-from ._accuracy import CASES, PREVIOUS_DEFAULT, compare, real_time_factor, run_case, with_plant, within
+from ._accuracy import (
+    CASES,
+    PREVIOUS_DEFAULT,
+    REFERENCE_DT,
+    compare,
+    real_time_factor,
+    resolved,
+    run_case,
+    with_plant,
+    within,
+)
 from .batch import batch_throughput
 
 TRANSIENT_S = 0.2
+HALF_STEP = "(the reference's half step)"  # the label of the row that shows the reference converged in the step
 LARGE_STEPS = (1e-2, 1.0 / 30.0)  # s: the loaded leg at the 1/30 s control period, and at 10 ms
 LARGE_STEP_NEWTON = 8
-REFERENCE_DT = 2.5e-5  # s, implicit with a fresh Jacobian every step: the converged closed-loop reference
 # implicit (step s, Jacobian age in steps, None: the configured age; passes per step, 1: linearly implicit, more:
 # backward Euler by Newton corrections) compared with it, plus symplectic at its own step. The exact step (age 1)
 # at twice the reference's shows the reference is converged.
@@ -333,7 +343,7 @@ def _accuracy_rows(cfg: SlotConfig, law: str, h_sym: float, age: int) -> list[Be
                 label += f" newton {newton}"
             label += suffix
             if dt == REFERENCE_DT / 2:
-                label += " (the reference's half step)"
+                label += f" {HALF_STEP}"
             case_rows.append(
                 BenchRow(
                     "accuracy",
@@ -350,22 +360,8 @@ def _accuracy_rows(cfg: SlotConfig, law: str, h_sym: float, age: int) -> list[Be
                     },
                 )
             )
-        rows += _resolved(case_rows)
+        rows += resolved(case_rows, HALF_STEP)
     return rows
-
-
-def _resolved(case_rows: list[BenchRow]) -> list[BenchRow]:
-    """One case's rows, with no verdict where the case cannot give one: when the reference's own half step is
-    outside the tolerance, the reference is not converged on this case and no setting can be told in or out
-    (each row's ``within_tolerance`` becomes None and ``resolved`` False; the differences stay)."""
-    half = [r for r in case_rows if "(the reference's half step)" in r.variant]
-    resolved = not half or bool(half[0].extra.get("within_tolerance"))
-    for r in case_rows:
-        if "error" not in r.extra:
-            r.extra["resolved"] = resolved
-            if not resolved:
-                r.extra["within_tolerance"] = None
-    return case_rows
 
 
 def _batch_rows(cfg: SlotConfig) -> list[BenchRow]:
