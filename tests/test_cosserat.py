@@ -48,15 +48,21 @@ def test_free_fall_conserves_momentum_through_the_coupling():
     np.testing.assert_allclose(momentum[0:2], momentum0[0:2], atol=1e-14)
 
 
-@pytest.mark.parametrize("dt", ["default", "5e-5", "5e-3 newton"])
+@pytest.mark.parametrize("dt", ["default", "5e-5", "5e-3 newton", "anchor split"])
 def test_in_free_space_a_walking_gait_moves_neither_the_momentum_nor_the_centre_of_mass(dt):
     # Gravity and ground off, the tendons driven by the forward gait (its legs swing and the torso rocks
     # +-2 deg): nothing outside acts, so the momentum holds to round-off and the centre of mass moves at
     # P / M. Bound: 1e-12 N s on the momentum (measured 1e-16) and 1 um on the centre of mass over 1.5 s
     # (measured < 0.1 um at both steps). Before the root's share of the tendon's tension change was
     # counted, the centre of mass moved 23.7 mm in 8 s at 2e-4 s and 6.3 mm at 5e-5 s.
-    # (5e-3 newton: backward Euler by Newton corrections, whose halved steps hand the torso their mean reaction)
-    steps = {"default": [], "5e-5": ["sim.dt=5e-5"], "5e-3 newton": ["sim.dt=5e-3", "plant.newton=8"]}
+    # (5e-3 newton: backward Euler by Newton corrections, whose halved steps hand the torso their mean reaction;
+    # anchor split: an uneven mesh, the element before the tendon's anchor in 8, robot.leg.anchor_refinement)
+    steps = {
+        "default": [],
+        "5e-5": ["sim.dt=5e-5"],
+        "5e-3 newton": ["sim.dt=5e-3", "plant.newton=8"],
+        "anchor split": ["robot.leg.anchor_refinement=8"],
+    }
     overrides = ["sim.gravity=0", "sim.ground=false"] + steps[dt]
     cfg, plant = _plant(*overrides)
     momentum0, _ = plant.momentum_world()
@@ -68,6 +74,7 @@ def test_in_free_space_a_walking_gait_moves_neither_the_momentum_nor_the_centre_
     drift = plant.centre_of_mass() - com0 - momentum0 * seconds / _total_mass(plant)
     assert np.linalg.norm(drift) < 1e-6
     assert np.ptp(plant.leg_world()[:, -1, 0]) > 0.1  # the legs did move (the feet are spread)
+    assert plant.model.n_nodes == cfg.robot.leg.n_nodes + 7 * (dt == "anchor split")
 
 
 def test_on_frictionless_ground_a_gait_makes_no_progress():
