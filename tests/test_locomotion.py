@@ -85,6 +85,22 @@ def test_mix_is_the_weighted_sum_and_stance_is_the_pressing_half() -> None:
     assert still.all()  # a standing robot has every foot in stance
 
 
+def test_a_primitives_kept_cycle_is_its_angles_and_stance_from_it_is_the_mix_over_the_whole_cycle() -> None:
+    # the stance plan takes each primitive's cycle once (Primitive.cycle) instead of mixing it every MPC step: the
+    # flags must be those of the mix over the cycle's samples and the asked phases together, bit for bit
+    a, b = _prim("a"), replace(_prim("b", heading=90.0), phase=np.array([0.2, 0.1, -0.3, 0.05]))
+    parts = [(0.35, a), (0.4, b), (0.25, Primitive.still("s", 60.0))]
+    psi = 0.37 + np.arange(15) / 16
+    kept = a.cycle(STYLE, TOP, 48)
+    np.testing.assert_array_equal(kept, a.angles(STYLE, np.arange(48) / 48, TOP))
+    assert a.cycle(STYLE, TOP, 48) is kept and not kept.flags.writeable
+    assert replace(a, phase=a.phase + 0.25).cycle(STYLE, TOP, 48) is not kept  # a changed primitive, its own cycle
+    both = mix(STYLE, parts, np.concatenate([np.arange(48) / 48, psi]), TOP)
+    expected = (both[48:] >= both[:48].mean(axis=0)) | (np.ptp(both[:48], axis=0) < 1.0)
+    np.testing.assert_array_equal(stance(STYLE, parts, psi, TOP), expected)
+    np.testing.assert_array_equal(stance(STYLE, parts, psi, TOP, angles=mix(STYLE, parts, psi, TOP)), expected)
+
+
 def test_interpolated_primitive_runs_from_a_to_b_along_the_shorter_phase_arc() -> None:
     a = _prim("a")
     b = Primitive("b", a.base_deg + 10.0, a.amplitude_deg - 20.0, np.array([0.0, 0.3, 0.45, -0.45]), 90.0, 0.02)

@@ -91,13 +91,17 @@ class GaitController(MpcController):
         self.command = self.library.command(self.velocity, self.yaw_rate, cycle=int(np.floor(self.psi + 1e-9)))
         dpsi = self.style.frequency_hz * self.period
         psi = self.psi + dpsi * np.arange(horizon)
+        angles = mix(self.style, self.command.parts, psi, self.top)  # the gait over the horizon; its first row now
         plan = contact_plan(
-            stance(self.style, self.command.parts, psi, self.top), cfg.gait, cfg.mpc.f_min_stance, cfg.mpc.f_max
+            stance(self.style, self.command.parts, psi, self.top, angles=angles),
+            cfg.gait,
+            cfg.mpc.f_min_stance,
+            cfg.mpc.f_max,
         )
         x_ref = reference(x, t, cfg.gait, self.period, horizon, path_origin=self.origin)
         forces, solution, violations = self.solve(x, x_ref, feet - x[3:6], plan)
         self.command_velocity, self.command_yaw_rate = self.velocity.copy(), self.yaw_rate  # what this step used
-        gait = mix(self.style, self.command.parts, self.psi, self.top)
+        gait = angles[0]  # the mix at this step's phase (psi[0] is self.psi)
         tendon = gait + self.adjust(x, feet, forces, solution)
         self.psi += dpsi
         self.steps += 1

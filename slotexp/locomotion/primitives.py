@@ -20,7 +20,7 @@ down by mixing towards standing still.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -62,6 +62,8 @@ class Primitive:
     heading_deg: float | None = None  # direction of travel in the body frame; None: turning or standing
     speed_mps: float = 0.0  # measured mean speed along ``heading_deg``
     yaw_rate_dps: float = 0.0  # measured mean yaw rate
+    # its angles over one whole cycle, by (style, top, samples): the stance plan reads them every MPC step
+    _cycles: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def from_config(cls, p: PrimitiveConfig) -> Primitive:
@@ -79,6 +81,18 @@ class Primitive:
         """Tendon angles (..., 4) at phase(s) ``psi`` (cycles), clipped to [0, ``top``]."""
         psi = np.asarray(psi, dtype=float)[..., None]
         return np.clip(self.base_deg + self.amplitude_deg * style.wave(psi + self.phase), 0.0, top)
+
+    def cycle(self, style: GaitStyle, top: float, samples: int) -> np.ndarray:
+        """Tendon angles (samples, 4) at the phases k / ``samples`` of one cycle (:meth:`angles`), made once per
+        style, top and sample count and kept (read-only): a primitive does not change, and the stance plan
+        (:func:`stance`) takes its cycle's mean every MPC step."""
+        key = (style, top, samples)
+        found = self._cycles.get(key)
+        if found is None:
+            found = self.angles(style, np.arange(samples) / samples, top)
+            found.flags.writeable = False
+            self._cycles[key] = found
+        return found
 
     def mirrored(self, axis: str) -> Primitive:
         """The mirror image about the body ``"x"`` or ``"y"`` axis (legs swapped, heading and turn reflected)."""
@@ -212,13 +226,23 @@ def mix(style: GaitStyle, parts: list[tuple[float, Primitive]], psi: np.ndarray 
 
 
 def stance(
-    style: GaitStyle, parts: list[tuple[float, Primitive]], psi: np.ndarray, top: float, samples: int = 48
+    style: GaitStyle,
+    parts: list[tuple[float, Primitive]],
+    psi: np.ndarray,
+    top: float,
+    samples: int = 48,
+    angles: np.ndarray | None = None,
 ) -> np.ndarray:
     """Stance flags (len(psi), 4): legs whose tendon is at or above its mean over the cycle (pressing
-    harder than on average, so they tend to stick); a leg that hardly moves (< 1 deg) is always in stance."""
-    # the cycle's samples and the asked phases in one mix (its cost is mostly per call, not per phase)
-    both = mix(style, parts, np.concatenate([np.arange(samples) / samples, np.atleast_1d(psi)]), top)
-    cycle = both[:samples]
+    harder than on average, so they tend to stick); a leg that hardly moves (< 1 deg) is always in stance.
+    ``angles``: the mix at ``psi`` (len(psi), 4), where the caller has it already."""
+    # the cycle's mix from each primitive's kept cycle (the same sum :func:`mix` makes, in the same order)
+    cycle: np.ndarray | float = 0.0
+    for weight, prim in parts:
+        if weight != 0.0:
+            cycle = cycle + weight * prim.cycle(style, top, samples)
+    cycle = np.clip(cycle, 0.0, top)
+    here = mix(style, parts, np.atleast_1d(psi), top) if angles is None else angles
     mean = cycle.mean(axis=0)
     still = np.ptp(cycle, axis=0) < 1.0
-    return (both[samples:] >= mean) | still
+    return (here >= mean) | still
