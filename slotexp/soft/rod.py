@@ -91,14 +91,14 @@ def build_leg(cfg: LegConfig, n_nodes: int | None = None, anchor_fraction: float
     """The leg of ``cfg``: rest shape, linear thickness taper, lumped masses; with ``anchor_fraction`` (the
     tendon's ``routed_fraction``) its mesh refined before the tendon's anchor (:func:`node_arclengths`)."""
     n = int(n_nodes or cfg.n_nodes)
-    refined = anchor_fraction is not None and cfg.anchor_refinement > 1
-    s_nodes = node_arclengths(cfg, anchor_fraction, n)[0] if refined else None
+    s_nodes = None
+    if anchor_fraction is not None and cfg.anchor_refinement > 1:
+        s_nodes = node_arclengths(cfg, anchor_fraction, n)[0]
     if cfg.rest_shape == "cubic":
         shape = rest_shape_points(cfg.rest_shape_coeffs, cfg.length, n, s_nodes)
-    elif s_nodes is None:  # straight and horizontal, at the root height of the cubic
-        shape = np.column_stack([np.linspace(0.0, cfg.length, n), np.full(n, cfg.rest_shape_coeffs[-1])])
-    else:
-        shape = np.column_stack([s_nodes, np.full(s_nodes.shape[0], cfg.rest_shape_coeffs[-1])])
+    else:  # straight and horizontal, at the root height of the cubic
+        x = np.linspace(0.0, cfg.length, n) if s_nodes is None else s_nodes
+        shape = np.column_stack([x, np.full(x.shape[0], cfg.rest_shape_coeffs[-1])])
     return model_from_shape(shape, cfg.width, cfg.thickness_root, cfg.thickness_tip, cfg.youngs_modulus, cfg.density)
 
 
