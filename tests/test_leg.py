@@ -189,6 +189,23 @@ def test_the_tendons_anchor_error_is_first_order_in_the_element_before_it_and_re
     assert abs(refined[8] / limit - 1.0) < 0.01 and abs(refined[8] - limit) < abs(uniform[121] - limit)
 
 
+def test_the_mesh_bench_sets_each_clamped_leg_against_the_even_meshes_first_order_limit(monkeypatch):
+    from slotexp.bench import mesh
+
+    monkeypatch.setattr(mesh, "LOADS", mesh.LOADS[:1])  # the free leg
+    monkeypatch.setattr(mesh, "EVEN", (31, 61))
+    monkeypatch.setattr(mesh, "LIMIT_FROM", (31, 61))
+    monkeypatch.setattr(mesh, "SPLITS", (8,))
+    cfg = load_config("plant=cosserat", "leg_load.settle_time=1.5")
+    rows = {r.extra["mesh"]: r.extra for r in mesh._statics_rows(cfg)}
+    coarse, fine = rows["31 nodes"]["tension_n"], rows["61 nodes"]["tension_n"]
+    limit = 2.0 * fine - coarse  # the element halves: Richardson's first-order limit
+    for extra in rows.values():
+        assert extra["tension_error_fraction"] == pytest.approx(extra["tension_n"] / limit - 1.0, rel=1e-9)
+    split, even = rows["31 nodes, the anchor's element split in 8"], rows["31 nodes"]
+    assert split["nodes"] == 38 and abs(split["tension_error_fraction"]) < 0.2 * even["tension_error_fraction"]
+
+
 def test_symplectic_energy_drift_without_damping():
     # Symplectic Euler keeps energy within an O(dt) band without secular growth.
     m = uniform()
