@@ -216,13 +216,18 @@ def interpolate(a: Primitive, b: Primitive, lam: float) -> Primitive:
     )
 
 
-def mix(style: GaitStyle, parts: list[tuple[float, Primitive]], psi: np.ndarray | float, top: float) -> np.ndarray:
-    """Tendon angles (..., 4) of the weighted mix ``sum w_j theta_j(psi)`` of primitives at one clock."""
+def _weighted(parts: list[tuple[float, Primitive]], angles_of, top: float) -> np.ndarray:
+    """``clip(sum w_j angles_of(p_j), 0, top)`` over the parts of nonzero weight, in their order."""
     out = 0.0
     for weight, prim in parts:
         if weight != 0.0:
-            out = out + weight * prim.angles(style, psi, top)
+            out = out + weight * angles_of(prim)
     return np.clip(out, 0.0, top)
+
+
+def mix(style: GaitStyle, parts: list[tuple[float, Primitive]], psi: np.ndarray | float, top: float) -> np.ndarray:
+    """Tendon angles (..., 4) of the weighted mix ``sum w_j theta_j(psi)`` of primitives at one clock."""
+    return _weighted(parts, lambda prim: prim.angles(style, psi, top), top)
 
 
 def stance(
@@ -237,11 +242,7 @@ def stance(
     harder than on average, so they tend to stick); a leg that hardly moves (< 1 deg) is always in stance.
     ``angles``: the mix at ``psi`` (len(psi), 4), where the caller has it already."""
     # the cycle's mix from each primitive's kept cycle (the same sum :func:`mix` makes, in the same order)
-    cycle: np.ndarray | float = 0.0
-    for weight, prim in parts:
-        if weight != 0.0:
-            cycle = cycle + weight * prim.cycle(style, top, samples)
-    cycle = np.clip(cycle, 0.0, top)
+    cycle = _weighted(parts, lambda prim: prim.cycle(style, top, samples), top)
     here = mix(style, parts, np.atleast_1d(psi), top) if angles is None else angles
     mean = cycle.mean(axis=0)
     still = np.ptp(cycle, axis=0) < 1.0
