@@ -411,6 +411,49 @@ def test_a_case_whose_reference_is_not_converged_gives_no_verdict():
     assert not any(r.extra["resolved"] for r in unresolved[:3]) and "resolved" not in unresolved[3].extra
 
 
+def test_a_setting_is_judged_by_where_its_runs_land_among_the_references_branches():
+    """The bench's ensemble yardstick on traces made by hand: a reference whose runs make two motions (two
+    branches, 5 mm apart in height), a setting whose runs land on either is in, and one whose run lands between
+    them is out by that run's distance to its nearest reference run."""
+    from slotexp.bench._accuracy import TOLERANCE, Trace, branches, judge, score, within
+
+    t = np.arange(300) / 30.0
+    walk = np.zeros((300, 12))
+    walk[:, 3] = 0.02 * t
+
+    def trace(dz_mm: float) -> Trace:
+        x = walk.copy()
+        x[:, 5] = 0.04 + 1e-3 * dz_mm * (t > 4.0)  # the branch shows after 4 s
+        return Trace(t, x, np.full((300, 4), 5.0), np.full(300, 1e-3))
+
+    references = [trace(0.0), trace(5.0), trace(0.1), trace(0.0)]
+    assert branches(references, 3.0) == [1, 2, 1, 1]
+    on_both = judge([trace(0.5), trace(5.5), trace(4.8), trace(0.0)], references, 3.0)
+    assert within(on_both) and on_both["runs_in"] == 4 and on_both["branches_visited"] == "1,2"
+    assert on_both["reference_branches"] == 2 and on_both["max_dz_mm"] == pytest.approx(0.5)  # the farthest run
+    between = judge([trace(0.5), trace(2.6)], references, 3.0)
+    assert not within(between) and between["runs_in"] == 1 and between["runs"] == 2
+    assert between["max_dz_mm"] == pytest.approx(2.4)  # 2.6 mm is nearest the 5 mm branch, 2.4 away
+    assert score(between) == pytest.approx(2.4 / TOLERANCE["max_dz_mm"])
+    # judged from after the branching, a case whose runs agree has one branch, and a run judged against itself is 0
+    assert branches(references[:1] + references[2:], 3.0) == [1, 1, 1]
+    assert judge(references[:1], references[:1], 0.0)["max_dz_mm"] == 0.0
+
+
+def test_an_ensemble_runs_each_case_with_the_feet_friction_scaled_and_leaves_the_config_alone(monkeypatch):
+    import slotexp.bench._accuracy as acc
+
+    seen = []
+    monkeypatch.setattr(acc, "run_closed_loop", lambda cfg, *a, **k: seen.append(cfg.robot.contact))
+    cfg = load("plant=cosserat", "robot.contact.static_friction=0.2")
+    acc.run_ensemble(cfg, acc.CASES[0])
+    assert [c.friction for c in seen] == pytest.approx([0.1 * f for f in acc.ENSEMBLE], rel=1e-12)
+    assert [c.static_friction for c in seen] == pytest.approx([0.2 * f for f in acc.ENSEMBLE], rel=1e-12)
+    assert all(c.stiffness == cfg.robot.contact.stiffness for c in seen)
+    assert cfg.robot.contact.friction == 0.1 and cfg.robot.contact.static_friction == 0.2
+    assert len(set(acc.ENSEMBLE)) == len(acc.ENSEMBLE) >= 3 and all(abs(f - 1) <= 2e-3 for f in acc.ENSEMBLE)
+
+
 def test_a_batch_steps_each_robot_exactly_as_it_steps_alone():
     from slotexp.plants.cosserat import CosseratBatch
 
