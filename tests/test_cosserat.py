@@ -406,6 +406,13 @@ def test_a_case_whose_reference_is_not_converged_gives_no_verdict():
     converged = resolved(rows(True), HALF_STEP)
     assert [r.extra.get("within_tolerance") for r in converged] == [False, True, True, None]
     assert all(r.extra["resolved"] for r in converged[:3])
+    outcomes = [dict(r.extra, outcome_within=r.extra.get("within_tolerance")) for r in rows(True)]
+    outcomes[2]["outcome_within"] = False  # the half step in run by run, out on the means
+    judged = resolved([BenchRow(r.component, r.variant, 1.0, 1.0, 1.0, e) for r, e in zip(rows(True), outcomes)],
+                      HALF_STEP, "outcome_within", "outcome_resolved")  # fmt: skip
+    assert [r.extra.get("outcome_within") for r in judged] == [None, None, None, None]
+    assert [r.extra.get("within_tolerance") for r in judged] == [False, True, True, None]
+    assert not judged[0].extra["outcome_resolved"] and "resolved" not in judged[0].extra
     unresolved = resolved(rows(False), HALF_STEP)
     assert [r.extra.get("within_tolerance") for r in unresolved] == [None, None, None, None]
     assert not any(r.extra["resolved"] for r in unresolved[:3]) and "resolved" not in unresolved[3].extra
@@ -435,6 +442,15 @@ def test_a_setting_is_judged_by_where_its_runs_land_among_the_references_branche
     assert not within(between) and between["runs_in"] == 1 and between["runs"] == 2
     assert between["max_dz_mm"] == pytest.approx(2.4)  # 2.6 mm is nearest the 5 mm branch, 2.4 away
     assert score(between) == pytest.approx(2.4 / TOLERANCE["max_dz_mm"])
+    # the ensembles' means: the window from 3 s, the branches' heights after 4 s of it
+    after = np.mean(t[t >= 3.0] > 4.0)
+    assert on_both["mean_dz_mm"] == pytest.approx((2.7 - 1.275) * after)
+    assert on_both["mean_speed_error_fraction"] == pytest.approx(0.0, abs=1e-12)
+    assert on_both["mean_dattitude_deg"] == 0.0 and on_both["outcome_within"]
+    # a run between the branches is out run by run and in on the means; three runs on the far branch are out there
+    assert between["outcome_within"] and between["mean_dz_mm"] == pytest.approx((1.55 - 1.275) * after)
+    far = judge([trace(5.0)] * 3, references, 3.0)
+    assert within(far) and not far["outcome_within"]  # each run is a reference motion; the mix is not
     # judged from after the branching, a case whose runs agree has one branch, and a run judged against itself is 0
     assert branches(references[:1] + references[2:], 3.0) == [1, 1, 1]
     assert judge(references[:1], references[:1], 0.0)["max_dz_mm"] == 0.0

@@ -256,6 +256,30 @@ def branches(references: list[Trace], judged_from: float) -> list[int]:
     return [order.index(lab) + 1 for lab in label]
 
 
+def outcome(trace: Trace, judged_from: float) -> np.ndarray:
+    """What a run delivers over its judged window, as means: gait speed (m/s), torso height (m), roll and pitch
+    (rad)."""
+    k = int(np.searchsorted(trace.t, judged_from - 1e-9))
+    window = trace.x[k:]
+    return np.array([gait_speed(trace, max(SPEED_FROM_S, judged_from)), *window[:, [5, 0, 1]].mean(axis=0)])
+
+
+def outcome_difference(runs: list[Trace], references: list[Trace], judged_from: float) -> dict[str, float]:
+    """The ensemble's mean outcome against the reference ensemble's (:func:`outcome`): speed error (fraction; NaN
+    where the reference does not walk), mean height (mm) and the larger of mean roll and pitch (deg), and
+    ``outcome_within`` whether those are inside :data:`TOLERANCE`'s speed, height and attitude."""
+    ours = np.mean([outcome(r, judged_from) for r in runs], axis=0)
+    ref = np.mean([outcome(r, judged_from) for r in references], axis=0)
+    result = {
+        "mean_speed_error_fraction": ours[0] / ref[0] - 1.0 if ref[0] > GAIT_SPEED else float("nan"),
+        "mean_dz_mm": 1000.0 * float(ours[1] - ref[1]),
+        "mean_dattitude_deg": float(np.degrees(np.max(np.abs(ours[2:] - ref[2:])))),
+    }
+    limits = (TOLERANCE["speed_error_fraction"], TOLERANCE["max_dz_mm"], TOLERANCE["max_dattitude_deg"])
+    result["outcome_within"] = all(not abs(v) > lim for v, lim in zip(result.values(), limits))
+    return result
+
+
 def judge(runs: list[Trace], references: list[Trace], judged_from: float) -> dict:
     """A setting's ensemble against the reference's: each run is compared with the reference run nearest it (in
     tolerances, :func:`score`), and the row reports the run farthest from its nearest, so the setting is within the
@@ -264,8 +288,10 @@ def judge(runs: list[Trace], references: list[Trace], judged_from: float) -> dic
     landing on a motion the reference never makes, not for taking the reference's other branch.
 
     Besides :func:`compare`'s figures: ``runs_in`` (of ``runs``) within the tolerance of some reference run,
-    ``reference_branches`` (how many motions the reference's runs make, :func:`branches`) and
-    ``branches_visited`` (those the setting's runs land nearest, e.g. "1,2")."""
+    ``reference_branches`` (how many motions the reference's runs make, :func:`branches`),
+    ``branches_visited`` (those the setting's runs land nearest, e.g. "1,2") and the ensembles' mean outcomes
+    (:func:`outcome_difference`): where a case branches on timing (a held blend chosen a cycle earlier), runs
+    millimetres apart at an instant can deliver the same means, and those are what its table reports."""
     labels = branches(references, judged_from)
     nearest = []
     for run in runs:
@@ -279,6 +305,7 @@ def judge(runs: list[Trace], references: list[Trace], judged_from: float) -> dic
         "runs_in": sum(s <= 1.0 for s, _, _ in nearest),
         "reference_branches": max(labels),
         "branches_visited": ",".join(str(b) for b in sorted({b for _, b, _ in nearest})),
+        **outcome_difference(runs, references, judged_from),
         "real_time_factor": float(np.mean([real_time_factor(r) for r in runs])),
         "wall_s": float(sum(r.wall_s for r in runs)),
     }
@@ -290,16 +317,17 @@ def within(result: dict[str, float]) -> bool:
     return all(not abs(result[key]) > limit for key, limit in TOLERANCE.items())
 
 
-def resolved(case_rows: list, check: str) -> list:
+def resolved(case_rows: list, check: str, verdict: str = "within_tolerance", flag: str = "resolved") -> list:
     """One case's rows (:class:`~slotexp.bench.BenchRow`), with no verdict where the case cannot give one: when the
     row whose label holds ``check`` (the reference's half step, or its finer mesh) is outside the tolerance, the
-    reference is not converged on this case and no setting can be told in or out (each row's ``within_tolerance``
-    becomes None and ``resolved`` False; the differences stay)."""
+    reference is not converged on this case and no setting can be told in or out (each row's ``verdict`` becomes
+    None and ``flag`` False; the differences stay). ``verdict``: the extra field judged (``outcome_within`` for
+    the ensembles' means, with its own ``flag``)."""
     rows = [r for r in case_rows if check in r.variant]
-    ok = not rows or bool(rows[0].extra.get("within_tolerance"))
+    ok = not rows or bool(rows[0].extra.get(verdict))
     for r in case_rows:
         if "error" not in r.extra:
-            r.extra["resolved"] = ok
+            r.extra[flag] = ok
             if not ok:
-                r.extra["within_tolerance"] = None
+                r.extra[verdict] = None
     return case_rows

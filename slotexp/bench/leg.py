@@ -365,7 +365,7 @@ def _accuracy_rows(cfg: SlotConfig, law: str, h_sym: float, age: int) -> list[Be
                     },
                 )
             )
-        rows += resolved(case_rows, HALF_STEP)
+        rows += resolved(resolved(case_rows, HALF_STEP), HALF_STEP, "outcome_within", "outcome_resolved")
     return rows
 
 
