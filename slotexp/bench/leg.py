@@ -218,7 +218,8 @@ def bench_leg(cfg: SlotConfig, out_dir: Path) -> list[BenchRow]:
     tip_ref = _tip_after_transient(cfg, h_ref, "symplectic")
     rows: list[BenchRow] = []
     py = _pyelastica_step_us(cfg, h_sym, 20, 200)
-    base = float(np.median(py)) if py is not None else float(np.median(timings[("symplectic", h_sym)][4]))
+    sym_per_step = timings[("symplectic", h_sym)][5]  # (name, h, age, newton, solved, per_step, first, factored)
+    base = float(np.median(py if py is not None else sym_per_step))  # PyElastica's time per step, else symplectic's
     for (label, _), (name, h, jac_age, newton, solved, per_step, first, factored) in timings.items():
         med = float(np.median(per_step))
         tip_err = float(np.linalg.norm(_tip_after_transient(cfg, h, name, jac_age, newton, solved) - tip_ref))
