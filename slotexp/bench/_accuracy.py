@@ -213,10 +213,15 @@ def real_time_factor(trace: Trace) -> float:
     return float(len(trace.t) * (trace.t[1] - trace.t[0])) / trace.wall_s
 
 
+def _in_tolerances(pairs) -> float:
+    """The largest |value| / limit over (value, limit) pairs, NaN values left out (0 if none is left)."""
+    return max((abs(value) / limit for value, limit in pairs if not np.isnan(value)), default=0.0)
+
+
 def score(result: dict[str, float]) -> float:
     """How far a :func:`compare` result is, in tolerances: the largest |difference| / tolerance (1 is the edge; a
     NaN speed error, where the reference does not walk, is left out)."""
-    return max((abs(result[key]) / limit for key, limit in TOLERANCE.items() if not np.isnan(result[key])), default=0.0)
+    return _in_tolerances((result[key], limit) for key, limit in TOLERANCE.items())
 
 
 # The closed loop makes discrete choices: the gait layer holds a whole-cycle blend three cycles, and the heading
@@ -276,7 +281,7 @@ def outcome_difference(runs: list[Trace], references: list[Trace], judged_from: 
         "mean_dattitude_deg": float(np.degrees(np.max(np.abs(ours[2:] - ref[2:])))),
     }
     limits = (TOLERANCE["speed_error_fraction"], TOLERANCE["max_dz_mm"], TOLERANCE["max_dattitude_deg"])
-    result["outcome_within"] = all(not abs(v) > lim for v, lim in zip(result.values(), limits))
+    result["outcome_within"] = _in_tolerances(zip(result.values(), limits)) <= 1.0
     return result
 
 
@@ -314,7 +319,7 @@ def judge(runs: list[Trace], references: list[Trace], judged_from: float) -> dic
 def within(result: dict[str, float]) -> bool:
     """Whether a :func:`compare` result is inside :data:`TOLERANCE` (a speed error that is NaN, where the
     reference does not walk, is not judged)."""
-    return all(not abs(result[key]) > limit for key, limit in TOLERANCE.items())
+    return score(result) <= 1.0
 
 
 def resolved(case_rows: list, check: str, verdict: str = "within_tolerance", flag: str = "resolved") -> list:

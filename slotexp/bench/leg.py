@@ -32,7 +32,8 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
   reference's branches. The implicit step at half ``REFERENCE_DT`` shows how far
   the reference itself is converged: the yardstick's resolution. Where that half step is
   outside the tolerance, the case's rows carry no verdict (``within_tolerance`` None,
-  ``resolved`` False). The rows marked ``friction solved`` (``plant.friction=solved``:
+  ``resolved`` False; on the ensembles' means, ``outcome_within`` None and
+  ``outcome_resolved`` False). The rows marked ``friction solved`` (``plant.friction=solved``:
   the feet's friction solved at the step's end, :mod:`slotexp.soft.friction`) are each
   judged against that law's own reference and half step, at ``SOLVED_STEPS``; a second set
   of batch rows times ``PREVIOUS_DEFAULT``.
