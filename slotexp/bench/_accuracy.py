@@ -89,8 +89,15 @@ CASES = (
     # (the loop turns a small difference in the gait's yaw rate into a lean, and so a roll: about 1 deg of roll
     # for 0.06 deg/s at 1 ms steps, docs/results/plant.md). A diagnostic, as the others judged
     Case("walk, heading loop off", "baseline", (0.02, 0.0), 20.0, WALK_JUDGED_FROM_S, (("max_lean_deg", 0.0),)),
-    Case("combined", "combined", (0.015, 0.0), 8.0),  # Table I's combined perturbation, push at 5 s
+    # Table I's combined perturbation, push at 5 s, run 20 s: over 3-8 s its runs branch on the timing of the held
+    # blends around the push, and a stride's timing is worth 1.5 % of the mean speed over 5 s; over 17 s its
+    # reference's half step is within every tolerance on the means (docs/results/plant.md)
+    Case("combined", "combined", (0.015, 0.0), 20.0),
     Case("standing push", "push_side", (0.0, 0.0), 6.0),  # a 0.4 N s sideways push at 3 s, standing
+    # the paper's 60-deg omnidirectional walk at gait=omni60's soft_velocity (on the soft plant that gait is the
+    # walk at that velocity: the same trace to the bit). Its runs scatter by about 1 % of speed under the
+    # ensemble's friction factors, so it is judged by its means; run by run it gives no verdict
+    Case("omni60", "baseline", (0.0075, 0.013), 20.0, WALK_JUDGED_FROM_S),
 )
 
 
@@ -271,17 +278,25 @@ def outcome(trace: Trace, judged_from: float) -> np.ndarray:
 
 def outcome_difference(runs: list[Trace], references: list[Trace], judged_from: float) -> dict[str, float]:
     """The ensemble's mean outcome against the reference ensemble's (:func:`outcome`): speed error (fraction; NaN
-    where the reference does not walk), mean height (mm) and the larger of mean roll and pitch (deg), and
-    ``outcome_within`` whether those are inside :data:`TOLERANCE`'s speed, height and attitude."""
-    ours = np.mean([outcome(r, judged_from) for r in runs], axis=0)
-    ref = np.mean([outcome(r, judged_from) for r in references], axis=0)
+    where the reference does not walk), mean height (mm) and the larger of mean roll and pitch (deg),
+    ``outcome_within`` whether those are inside :data:`TOLERANCE`'s speed, height and attitude, and
+    ``mean_speed_error_se_fraction`` the speed error's standard error from the two ensembles' scatter."""
+    mine = np.array([outcome(r, judged_from) for r in runs])
+    theirs = np.array([outcome(r, judged_from) for r in references])
+    ours, ref = mine.mean(axis=0), theirs.mean(axis=0)
+    walks = ref[0] > GAIT_SPEED
     result = {
-        "mean_speed_error_fraction": ours[0] / ref[0] - 1.0 if ref[0] > GAIT_SPEED else float("nan"),
+        "mean_speed_error_fraction": ours[0] / ref[0] - 1.0 if walks else float("nan"),
         "mean_dz_mm": 1000.0 * float(ours[1] - ref[1]),
         "mean_dattitude_deg": float(np.degrees(np.max(np.abs(ours[2:] - ref[2:])))),
     }
     limits = (TOLERANCE["speed_error_fraction"], TOLERANCE["max_dz_mm"], TOLERANCE["max_dattitude_deg"])
     result["outcome_within"] = _in_tolerances(zip(result.values(), limits)) <= 1.0
+    # how well four runs resolve that speed error: the standard error of the difference of the two means (from
+    # each ensemble's own scatter), as a fraction of the reference's mean; a verdict within two of it of the
+    # tolerance is the ensembles' draw as much as the step's
+    spread = [np.var(m[:, 0], ddof=1) / len(m) if len(m) > 1 else 0.0 for m in (mine, theirs)]
+    result["mean_speed_error_se_fraction"] = float(np.sqrt(sum(spread)) / ref[0]) if walks else float("nan")
     return result
 
 

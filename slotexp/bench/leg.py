@@ -21,8 +21,8 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
   forward walk's, each at its own phase), for ``batch.BATCH_S`` simulated seconds at the
   configured step; ``ratio_vs_baseline`` = robot-seconds simulated per wall second,
   and B robots stepped one after another in one thread in ``extra``.
-- ``accuracy``: the closed-loop cases of :mod:`._accuracy` (walk, Table I's combined,
-  a standing push) at each plant setting (integrator, step), each against the
+- ``accuracy``: the closed-loop cases of :mod:`._accuracy` (the forward and lateral walks,
+  Table I's combined, a standing push, omni60) at each plant setting (integrator, step), each against the
   implicit step at ``REFERENCE_DT``, every one run as an ensemble of four whose feet's
   friction differs by parts in a thousand (``ENSEMBLE``: a case can branch, and a
   setting is judged by where its runs land among the reference's, ``judge``); the speed
