@@ -454,9 +454,13 @@ def test_a_setting_is_judged_by_where_its_runs_land_among_the_references_branche
     # the speed error's standard error, from each ensemble's scatter: none where every run walks alike
     assert far["mean_speed_error_se_fraction"] == pytest.approx(0.0, abs=1e-12)
     faster = [Trace(r.t, r.x * np.where(np.arange(12) == 3, 1.05, 1.0), r.normal, r.step_wall_s) for r in references]
-    spread = judge(references[:1] + faster[:1], references[:2], 3.0)  # speeds 0.020 and 0.021 against 0.020 twice
+    level = references[:1] + references[3:]  # two reference runs on the same branch
+    spread = judge(references[:1] + faster[:1], level, 3.0)  # speeds 0.020 and 0.021 against 0.020 twice
     assert spread["mean_speed_error_fraction"] == pytest.approx(0.025)
     assert spread["mean_speed_error_se_fraction"] == pytest.approx(np.sqrt(0.001**2 / 2 / 2) / 0.02)
+    # within two standard errors of the 2 % tolerance either way the means give no verdict; beyond them they do
+    assert spread["outcome_within"] is None
+    assert judge([faster[0], faster[3]], level, 3.0)["outcome_within"] is False  # 5 % faster, no scatter
     # judged from after the branching, a case whose runs agree has one branch, and a run judged against itself is 0
     assert branches(references[:1] + references[2:], 3.0) == [1, 1, 1]
     assert judge(references[:1], references[:1], 0.0)["max_dz_mm"] == 0.0
