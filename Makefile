@@ -23,7 +23,7 @@ test: $(STAMP) results-check
 	$(BIN)/python -m pytest -q -n auto --dist worksteal -m "not serial"
 	$(BIN)/python -m pytest -q -m serial
 
-# Regenerate everything committed under results/ (about four hours on 2 cores, most of it the identifications and the gait search),
+# Regenerate everything committed under results/ (about four and a half hours on 2 cores, most of it the identifications and the gait search),
 # then render the results manual's tables (docs/results/) from what it wrote.
 results: $(STAMP)
 	$(BIN)/python scripts/make_results.py
