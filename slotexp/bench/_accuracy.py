@@ -93,8 +93,8 @@ CASES = (
     # for 0.06 deg/s at 1 ms steps, docs/results/plant.md). A diagnostic, as the others judged
     Case("walk, heading loop off", "baseline", (0.02, 0.0), 20.0, WALK_JUDGED_FROM_S, (("max_lean_deg", 0.0),)),
     # Table I's combined perturbation, push at 5 s, run 20 s: over 3-8 s its runs branch on the timing of the held
-    # blends around the push, and a stride's timing is worth 1.5 % of the mean speed over 5 s; over 17 s its
-    # reference's half step is within every tolerance on the means (docs/results/plant.md)
+    # blends around the push, and a stride's timing is worth 1.5 % of the mean speed over 5 s; over 17 s that
+    # share falls, and what is left is the reference's mix of two motions (docs/results/plant.md)
     Case("combined", "combined", (0.015, 0.0), 20.0),
     Case("standing push", "push_side", (0.0, 0.0), 6.0),  # a 0.4 N s sideways push at 3 s, standing
     # the paper's 60-deg omnidirectional walk at gait=omni60's soft_velocity (on the soft plant that gait is the

@@ -34,8 +34,8 @@ Rows (one process, one core; JIT compile time measured apart, in ``extra``):
   outside the tolerance, the case's rows carry no verdict (``within_tolerance`` None,
   ``resolved`` False; on the ensembles' means, ``outcome_within`` None and
   ``outcome_resolved`` False). A row's means give no verdict either where its mean speed
-  error is within two standard errors (``mean_speed_error_se_fraction``) of the tolerance
-  (:func:`._accuracy.outcome_verdict`). The rows marked ``friction solved`` (``plant.friction=solved``:
+  error is within ``RESOLVED_SE`` standard errors (``mean_speed_error_se_fraction``) of the
+  tolerance (:func:`._accuracy.outcome_verdict`). The rows marked ``friction solved`` (``plant.friction=solved``:
   the feet's friction solved at the step's end, :mod:`slotexp.soft.friction`) are each
   judged against that law's own reference and half step, at ``SOLVED_STEPS``; a second set
   of batch rows times ``PREVIOUS_DEFAULT``.
