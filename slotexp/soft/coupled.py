@@ -454,10 +454,12 @@ def _solve_lateral(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_
 
     Newton on G(xi_new) = 0 (:func:`_lateral_residual`) from the guess in ``xi_new``; each iteration's matrix is
     ``system`` - h sum_k t_k j_k j_k^T, t_k the law's tangent (<= 0 for plain friction, so positive definite), and a
-    backtracking line search keeps the residual falling. ``scratch`` (10, 6): four vectors and the 6 x 6 matrix;
-    ``across`` (legs,) receives each leg's friction across its plane at the end."""
+    backtracking line search keeps the residual falling. Each trial point is evaluated with its Jacobian, so the
+    accepted one (nearly always the full step) is not evaluated again. ``scratch`` (16, 6): four vectors and two
+    6 x 6 matrices; ``across`` (legs,) receives each leg's friction across its plane at the end."""
     g, step, trial, gt = scratch[0], scratch[1], scratch[2], scratch[3]
     hess = scratch[4:10]
+    hess_trial = scratch[10:16]
     args = (pos, vel, normal, par, axes, p2, mu, v_eps, h)
     # |G| at which the step is solved: far below the momentum a step moves (rhs6 ~ M v + h M g)
     size = 0.0
@@ -475,14 +477,17 @@ def _solve_lateral(system, rhs6, xi_new, pos, vel, normal, par, axes, p2, mu, v_
         while True:  # backtracking: the full step, or the first half that lowers the residual enough
             for a in range(6):
                 trial[a] = xi_new[a] + lam * step[a]
-            value = _lateral_residual(system, rhs6, trial, *args, gt, across, hess, False)
+            value = _lateral_residual(system, rhs6, trial, *args, gt, across, hess_trial, True)
             if value < (1.0 - 1e-4 * lam) * merit or lam < 1e-6:
                 break
             lam *= 0.5
+        # G, its Jacobian and each leg's friction at the new velocity (what the caller reads when this is the last)
+        merit = value
         for a in range(6):
             xi_new[a] = trial[a]
-        # G, its Jacobian and each leg's friction at the new velocity (what the caller reads when this is the last)
-        merit = _lateral_residual(system, rhs6, xi_new, *args, g, across, hess, True)
+            g[a] = gt[a]
+            for b in range(6):
+                hess[a, b] = hess_trial[a, b]
 
 
 @njit(cache=True, allocates=False)
@@ -630,7 +635,7 @@ def coupled_steps(robot, work, torso_model, leg, settings, f_ext, h, n_steps, ho
     # plant.friction=solved with rigid patches (no series spring): the friction across the planes at the step's end
     solve_across = par[0, P_FSOLVE] > 0.5 and k_lat <= 0.0 and not answering
     axes = np.zeros((n_legs, 3))  # each leg's (lx, ly, w0): its nodes' j vectors (_lateral_residual)
-    lateral_scratch = np.zeros((10, 6))
+    lateral_scratch = np.zeros((16, 6))
     across_end = np.zeros(n_legs)
     for step in range(n_steps + 1):
         rot = quat_to_rot(torso[3:7])
