@@ -55,6 +55,27 @@ def test_the_loop_leans_against_the_error_holds_a_constant_drift_and_does_not_wi
     assert not HeadingLoop(0.0, 0.0, 15.0, period, window).steers(0.02)
 
 
+def test_the_deadband_leaves_small_errors_alone_and_acts_on_what_lies_beyond() -> None:
+    period, window = 1.0 / 30.0, 16
+    loop = HeadingLoop(kp=10.0, ki=1.0, max_lean_deg=15.0, period=period, window_steps=window, deadband_deg=1.5)
+    for _ in range(30 * 60):  # a minute 1.4 deg off: inside the band, nothing winds and nothing leans
+        assert loop.update(1.4, 0.02) == 0.0
+    assert loop.integral == 0.0
+    # beyond it the loop sees only the excess: 2 deg off is 0.5 deg to it (against the same loop with no band)
+    plain = HeadingLoop(kp=10.0, ki=1.0, max_lean_deg=15.0, period=period, window_steps=window)
+    banded = HeadingLoop(kp=10.0, ki=1.0, max_lean_deg=15.0, period=period, window_steps=window, deadband_deg=1.5)
+    for _ in range(window):
+        plain.update(0.5, 0.02)
+        lean = banded.update(2.0, 0.02)
+    assert lean == pytest.approx(plain.lean) and banded.integral == pytest.approx(plain.integral)
+    # a drift still ends cancelled: the integral holds the lean that stops it, the error near the band's edge (not 0)
+    b, d, yaw = 0.03, 0.2, 0.0
+    loop = HeadingLoop(kp=10.0, ki=1.0, max_lean_deg=15.0, period=period, window_steps=window, deadband_deg=1.5)
+    for _ in range(30 * 120):
+        yaw += period * (b * loop.update(yaw, 0.02) + d)
+    assert loop.lean == pytest.approx(-d / b, rel=0.02) and 1.3 < loop.error_deg < 1.6
+
+
 def _walk(overrides: list[str], seconds: float, lean: float | None = None, record: list | None = None) -> np.ndarray:
     """Yaw (deg) every step of a closed-loop soft walk; ``lean`` fixes the lean (deg of tendon) instead of the
     loop; ``record`` collects the loop's lean every step."""

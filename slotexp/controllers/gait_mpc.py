@@ -159,6 +159,8 @@ class GaitMpcConfig(GaitControllerConfig):
     # whether the loop learns which way the lean turns the robot (it differs between models: heading.py); off, it
     # assumes the friction-braking sign (the loaded side turns towards itself)
     heading_learn_sign: bool = True
+    # heading errors (deg, the cycle-mean) the loop leaves alone: it acts on what lies beyond; 0: none
+    heading_deadband_deg: float = num_field(0.0, lo=0.0, hi=10.0, unit="deg")
     # path feedback (slotexp/locomotion/path.py): path_kp times the cycle-mean path error plus path_ki times its
     # integral, turned into the body frame by the measured yaw, is added to the command the MPC's plan moved
     path_kp: float = num_field(1.0, lo=0.0, hi=10.0, unit="1/s")
@@ -186,6 +188,7 @@ class GaitMpcController(GaitController):
             window,
             cycle_steps=self.gait_cycle_steps(cfg),
             learn_sign=ctrl.heading_learn_sign,
+            deadband_deg=ctrl.heading_deadband_deg,
         )
         self.walking = bool(np.hypot(*cfg.gait.velocity) >= MIN_SPEED)  # the reference travels
         self.planned = self.velocity.copy()  # the command moved by the MPC's planned accelerations alone

@@ -33,6 +33,14 @@ from one cycle to the next), its output the lean in degrees of tendon, clipped t
 that cancels a gait's own yaw drift. Standing still there is no sliding and so no
 authority: below ``MIN_SPEED`` the integral is held.
 
+The deadband (``deadband_deg``): the loop acts only on the cycle-mean error beyond it, and inside it
+the integral holds the lean where it is. On the default model the lean's authority is a few hundredths
+of a degree per second per degree and not monotone in the lean, so holding the heading to a fraction of
+a degree costs leans of several degrees, which roll the body by one to two degrees; which of its two
+stable leans the loop then finds moves with the start-up, the plant's step and the mesh
+(docs/results/plant.md). A band leaves those fractions alone. A steady drift still ends cancelled by the
+integral, with the heading held at the band's edge instead of on the reference.
+
 The lean's sign (``learn_sign``): each gait cycle gives one sample, the cycle's mean lean
 and the heading error's rate over the cycle (measured at the same phase, so the gait's
 rocking cancels). A least-squares line through the last ``SIGN_WINDOW_CYCLES`` samples
@@ -87,8 +95,10 @@ class HeadingLoop:
         window_steps: int,
         cycle_steps: int = 0,
         learn_sign: bool = False,
+        deadband_deg: float = 0.0,
     ) -> None:
         self.kp, self.ki, self.max_lean, self.period = kp, ki, max_lean_deg, period
+        self.deadband = deadband_deg  # |error| the loop leaves alone: it acts on what lies beyond it
         self.errors: deque[float] = deque(maxlen=max(1, window_steps))
         self.integral = 0.0  # deg s
         self.lean = 0.0  # deg of tendon
@@ -130,6 +140,7 @@ class HeadingLoop:
         elif self.learn_sign:
             self._judge_sign(error_deg)
         e = self.error_deg
+        e = float(np.sign(e)) * max(abs(e) - self.deadband, 0.0)  # inside the band: the lean holds where it is
         integral = self.integral + e * self.period
         # conditional integration: not while the output is clipped, unless the step unwinds the integral
         if abs(self.kp * e + self.ki * integral) <= self.max_lean or abs(integral) < abs(self.integral):
