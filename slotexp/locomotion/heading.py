@@ -39,7 +39,8 @@ of a degree per second per degree and not monotone in the lean, so holding the h
 a degree costs leans of several degrees, which roll the body by one to two degrees; which of its two
 stable leans the loop then finds moves with the start-up, the plant's step and the mesh
 (docs/results/plant.md). A band leaves those fractions alone. A steady drift still ends cancelled by the
-integral, with the heading held at the band's edge instead of on the reference.
+integral, with the heading held at the band's edge instead of on the reference. Off by default: on the
+stiff model's omni60 the lean it winds once the band is crossed misled the sign learner into a wrong flip.
 
 The lean's sign (``learn_sign``): each gait cycle gives one sample, the cycle's mean lean
 and the heading error's rate over the cycle (measured at the same phase, so the gait's
