@@ -2,7 +2,7 @@
 
 ``slot bench leg`` measures the batch rows on this machine; a many-core node (a
 cluster's, a lent accelerator host's) may lack the project's CLI environment (Hydra,
-the QP solvers). This script runs the same measurement (:mod:`slotexp.bench.batch`)
+the QP solvers). This script runs the same measurement (:mod:`slotexp.bench._batch`)
 there from the package's source and a pickled config:
 
     # here, with the project installed: write the config
@@ -44,7 +44,7 @@ def run(path: Path, sizes: tuple[int, ...], seconds: float, out: Path | None) ->
     import numba
     import numpy as np
 
-    from slotexp.bench.batch import batch_throughput
+    from slotexp.bench._batch import batch_throughput
 
     cfg = pickle.loads(path.read_bytes())
     start = time.perf_counter()

@@ -19,7 +19,7 @@ class Absent(importlib.abc.MetaPathFinder):
             raise ModuleNotFoundError(f"{{name}} is not installed on the node")
 sys.meta_path.insert(0, Absent())
 cfg = pickle.loads(open(sys.argv[1], "rb").read())
-from slotexp.bench.batch import batch_throughput
+from slotexp.bench._batch import batch_throughput
 print(cfg.plant.integrator, cfg.sim.dt, cfg.experiment)
 """
 

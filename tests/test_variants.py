@@ -310,3 +310,18 @@ def test_a_setting_every_variant_has_passes_the_override_check_with_no_variant_c
     assert "did you mean solver.time_limit_s" in _variant_key_problem(
         "solver.time_limt_s", SlotConfig, {}, "solver", None
     )
+
+
+@pytest.mark.parametrize(
+    "registry",
+    ["slotexp.plants:PLANTS", "slotexp.controllers:CONTROLLERS", "slotexp.backends:BACKENDS",
+     "slotexp.jobs:EXPERIMENTS", "slotexp.bench:COMPONENTS"],
+)  # fmt: skip
+def test_every_module_a_registry_lists_defines_its_variant(registry: str) -> None:
+    """A module in a registry's package that is not a variant (shared code) must start with ``_``: otherwise
+    the CLI offers it as a choice and ``slot bench`` with no names, which runs every component, fails on it."""
+    import importlib
+
+    module, name = registry.split(":")
+    variants = getattr(importlib.import_module(module), name)
+    assert set(variants.load_all()) == set(variants.names())

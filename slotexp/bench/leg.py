@@ -71,7 +71,7 @@ from ._accuracy import (
     with_plant,
     within,
 )
-from .batch import batch_throughput
+from ._batch import batch_throughput
 
 TRANSIENT_S = 0.2
 HALF_STEP = "(the reference's half step)"  # the label of the row that shows the reference converged in the step
